@@ -1,0 +1,70 @@
+"""Frozen parameter dataclasses that are also pytrees.
+
+Leaf parameters are frozen (hashable, usable as static configuration) and at the same time JAX
+pytrees, so a loss can be differentiated with respect to them. Construction validates concrete
+values: a negative gain or length scale raises a ``ValueError`` naming the field; fields marked
+``signed`` (joint positions, limits) accept any sign.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, TypeVar
+
+import jax
+import numpy as np
+
+T = TypeVar("T")
+
+
+def signed(default: Any) -> Any:
+    """A dataclass field that may hold negative values (e.g. joint angles, lower limits)."""
+    if isinstance(default, (list, tuple)):
+        return dataclasses.field(default=tuple(default), metadata={"signed": True})
+    return dataclasses.field(default=default, metadata={"signed": True})
+
+
+def _is_concrete(value: Any) -> bool:
+    if isinstance(value, (int, float, np.ndarray, np.generic)):
+        return True
+    if isinstance(value, tuple):
+        return all(isinstance(v, (int, float, np.generic)) for v in value)
+    return False
+
+
+def _validate(obj: Any) -> None:
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if f.metadata.get("signed") or not _is_concrete(value):
+            continue
+        arr = np.asarray(value, dtype=np.float64)
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{type(obj).__name__}.{f.name} must be finite, got {value!r}")
+        if np.any(arr < 0):
+            raise ValueError(f"{type(obj).__name__}.{f.name} must be >= 0, got {value!r}")
+
+
+def param_dataclass(cls: type[T]) -> type[T]:
+    """Make ``cls`` a frozen, validated dataclass registered as a JAX pytree (all fields data)."""
+    cls = dataclasses.dataclass(frozen=True)(cls)
+    names = tuple(f.name for f in dataclasses.fields(cls))
+    user_post_init = getattr(cls, "__post_init__", None)
+
+    def __post_init__(self: Any) -> None:
+        _validate(self)
+        if user_post_init is not None:
+            user_post_init(self)
+
+    cls.__post_init__ = __post_init__
+
+    def flatten(obj: Any) -> tuple[tuple[Any, ...], None]:
+        return tuple(getattr(obj, n) for n in names), None
+
+    def unflatten(_: None, children: tuple[Any, ...]) -> Any:
+        obj = object.__new__(cls)
+        for n, c in zip(names, children, strict=True):
+            object.__setattr__(obj, n, c)
+        return obj
+
+    jax.tree_util.register_pytree_node(cls, flatten, unflatten)
+    return cls

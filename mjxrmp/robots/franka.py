@@ -1,0 +1,212 @@
+"""Franka Emika Panda (ANCHOR_FACTS §2, §1.1): kinematics and control points in pure JAX.
+
+The chain uses the manufacturer's modified (Craig) Denavit–Hartenberg parameters: the frame of
+joint ``i`` relative to the previous one is ``RotX(α) · TransX(a) · RotZ(q_i) · TransZ(d)``,
+which equals a constant translation ``(a, −sin α · d, cos α · d)`` followed by the rotation
+``RotX(α) · RotZ(q_i)``. The flange ("link8") sits 0.107 m along the link-7 z-axis, the hand is
+the flange rotated by −π/4 about its z-axis, and the grasp target (the end effector) lies 0.105 m
+along the hand's z-axis.
+
+48 collision control points (radii 0.01–0.1 m) are interpolated along 8 segments between named
+frames, as in the original Franka configuration; on each segment the points sit at fractions
+``i/n``, ``i = 1..n`` (the first endpoint is excluded).
+
+Everything is computed in one forward-kinematics pass with elementwise operations only (rotations
+by the constant DH/offset matrices are expanded into column combinations at trace time), and the
+control points are one constant ``(48, k) @ (k, 3)`` product, so the functions stay lean under
+repeated ``jax.jvp``/``jax.vmap``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjxrmp.robots.base import Robot
+
+#: Modified DH parameters ``(a, d, alpha)`` of joints 1–7 (m, m, rad).
+DH_PARAMS: tuple[tuple[float, float, float], ...] = (
+    (0.0, 0.333, 0.0),
+    (0.0, 0.0, -math.pi / 2),
+    (0.0, 0.316, math.pi / 2),
+    (0.0825, 0.0, math.pi / 2),
+    (-0.0825, 0.384, -math.pi / 2),
+    (0.0, 0.0, math.pi / 2),
+    (0.088, 0.0, math.pi / 2),
+)
+#: Flange ("link8") parameters ``(a, d, alpha)``; no joint.
+FLANGE_DH: tuple[float, float, float] = (0.0, 0.107, 0.0)
+#: Rotation of the hand about the flange z-axis (rad).
+HAND_YAW = -math.pi / 4
+#: Distance of the grasp target along the hand z-axis (m).
+GRASP_OFFSET = 0.105
+
+#: Extra frames: ``name -> (parent frame, translation in the parent frame)``; each keeps its
+#: parent's orientation. Listed in dependency order.
+OFFSET_FRAMES: dict[str, tuple[str, tuple[float, float, float]]] = {
+    "forearm_end_pt": ("link4", (-0.09, 0.02, 0.0)),
+    "forearm_mid_pt": ("forearm_end_pt", (0.0, 0.175, 0.0)),
+    "forearm_mid_pt_shifted": ("forearm_mid_pt", (0.0, 0.0, -0.05)),
+    "forearm_distal": ("link5", (0.0, 0.1, 0.0)),
+    "wrist_end_pt": ("link7", (0.0, 0.0, -0.07)),
+    "face_left": ("hand", (0.0, 0.07, 0.04)),
+    "face_right": ("hand", (0.0, -0.07, 0.04)),
+    "face_back_left": ("hand", (0.0, 0.07, 0.0)),
+    "face_back_right": ("hand", (0.0, -0.07, 0.0)),
+    "left_finger": ("hand", (0.0, 0.03999065, 0.0584)),
+    "right_finger": ("hand", (0.0, -0.03999065, 0.0584)),
+    "left_fingertip": ("left_finger", (0.0, 0.0, 0.045)),
+    "right_fingertip": ("right_finger", (0.0, 0.0, 0.045)),
+    "grasp_target": ("hand", (0.0, 0.0, GRASP_OFFSET)),
+}
+
+#: Names of the DH frames (``link0`` is the base, ``link8`` the flange) and the hand.
+CHAIN_FRAMES: tuple[str, ...] = (*(f"link{i}" for i in range(9)), "hand")
+#: Every frame returned by :func:`link_frames`, in order.
+FRAME_NAMES: tuple[str, ...] = (*CHAIN_FRAMES, *OFFSET_FRAMES)
+
+#: Control-point segments ``(start frame, end frame, number of points, radius)``.
+CONTROL_POINT_SEGMENTS: tuple[tuple[str, str, int, float], ...] = (
+    ("link1", "link3", 10, 0.1),
+    ("forearm_end_pt", "forearm_mid_pt", 5, 0.1),
+    ("forearm_mid_pt_shifted", "forearm_distal", 5, 0.075),
+    ("wrist_end_pt", "link8", 8, 0.05),
+    ("face_back_left", "face_back_right", 5, 0.03),
+    ("face_left", "face_right", 5, 0.02),
+    ("hand", "left_fingertip", 5, 0.01),
+    ("hand", "right_fingertip", 5, 0.01),
+)
+NUM_CONTROL_POINTS = sum(n for _, _, n, _ in CONTROL_POINT_SEGMENTS)
+CONTROL_POINT_RADII: tuple[float, ...] = tuple(
+    r for _, _, n, r in CONTROL_POINT_SEGMENTS for _ in range(n)
+)
+
+#: Default ("ready") configuration of the original implementation (rad).
+DEFAULT_Q = (0.0, -0.7854, 0.0, -2.4435, 0.0, 1.6581, 0.75)
+#: Position limits of the original implementation's robot model (rad).
+Q_LOWER = (-2.9671, -1.8326, -2.9671, -3.1416, -2.9671, -0.0873, -2.9671)
+Q_UPPER = (2.9671, 1.8326, 2.9671, 0.0, 2.9671, 3.8223, 2.9671)
+#: The manufacturer's (tighter) position limits (rad).
+MANUFACTURER_Q_LOWER = (-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973)
+MANUFACTURER_Q_UPPER = (2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973)
+#: Joint velocity limits (rad/s).
+QD_MAX = (2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61)
+
+Frame = tuple[jax.Array, jax.Array]
+
+
+def _clean(x: float) -> float:
+    """Snap values that are zero or ±1 up to rounding (e.g. ``cos(π/2)``) to the exact value."""
+    for exact in (0.0, 1.0, -1.0):
+        if abs(x - exact) < 1e-12:
+            return exact
+    return x
+
+
+def dh_translation(a: float, d: float, alpha: float) -> tuple[float, float, float]:
+    """Constant translation ``(a, −sin α · d, cos α · d)`` of a modified-DH transform."""
+    return (a, _clean(-math.sin(alpha) * d), _clean(math.cos(alpha) * d))
+
+
+def _times_vector(r: jax.Array, v: tuple[float, float, float]) -> jax.Array:
+    """``r @ v`` for a constant vector, expanded into a sum of scaled columns."""
+    terms = [v[k] * r[:, k] for k in range(3) if v[k] != 0.0]
+    if not terms:
+        return jnp.zeros(3, dtype=r.dtype)
+    out = terms[0]
+    for t in terms[1:]:
+        out = out + t
+    return out
+
+
+def _rotate(r: jax.Array, axis: int, c: jax.Array | float, s: jax.Array | float) -> jax.Array:
+    """``r @ Rot_axis(θ)`` given ``c = cos θ``, ``s = sin θ`` (axis 0 = x, 2 = z)."""
+    i, j = (1, 2) if axis == 0 else (0, 1)
+    if isinstance(c, float) and isinstance(s, float):
+        if s == 0.0 and c == 1.0:
+            return r
+        if c == 0.0:  # ±π/2: a signed column permutation
+            ci, cj = s * r[:, j], -s * r[:, i]
+        else:
+            ci, cj = c * r[:, i] + s * r[:, j], c * r[:, j] - s * r[:, i]
+    else:
+        ci, cj = c * r[:, i] + s * r[:, j], c * r[:, j] - s * r[:, i]
+    cols = [r[:, 0], r[:, 1], r[:, 2]]
+    cols[i], cols[j] = ci, cj
+    return jnp.stack(cols, axis=1)
+
+
+def link_frames(q: jax.Array) -> dict[str, Frame]:
+    """All named frames ``name -> (R (3, 3), p (3,))`` in the base frame, in one FK pass.
+
+    Names: ``link0`` (base) … ``link7``, ``link8`` (flange), ``hand`` and the offset frames of
+    :data:`OFFSET_FRAMES` (forearm/wrist points, hand faces, fingers, fingertips,
+    ``grasp_target``). ``R`` maps frame coordinates to base coordinates.
+    """
+    q = jnp.asarray(q)
+    if not jnp.issubdtype(q.dtype, jnp.floating):
+        q = q.astype(jnp.result_type(float))
+    r = jnp.eye(3, dtype=q.dtype)
+    p = jnp.zeros(3, dtype=q.dtype)
+    frames: dict[str, Frame] = {"link0": (r, p)}
+    cos_q, sin_q = jnp.cos(q), jnp.sin(q)
+    for i, (a, d, alpha) in enumerate(DH_PARAMS):
+        p = p + _times_vector(r, dh_translation(a, d, alpha))
+        r = _rotate(r, 0, _clean(math.cos(alpha)), _clean(math.sin(alpha)))
+        r = _rotate(r, 2, cos_q[i], sin_q[i])
+        frames[f"link{i + 1}"] = (r, p)
+    p = p + _times_vector(r, dh_translation(*FLANGE_DH))
+    frames["link8"] = (r, p)
+    frames["hand"] = (_rotate(r, 2, math.cos(HAND_YAW), math.sin(HAND_YAW)), p)
+    for name, (parent, offset) in OFFSET_FRAMES.items():
+        r_parent, p_parent = frames[parent]
+        frames[name] = (r_parent, p_parent + _times_vector(r_parent, offset))
+    return frames
+
+
+def _segment_weights() -> tuple[tuple[str, ...], np.ndarray]:
+    """Frames used by the control points and the constant ``(48, k)`` interpolation matrix."""
+    names = tuple(dict.fromkeys(n for s, e, _, _ in CONTROL_POINT_SEGMENTS for n in (s, e)))
+    rows = []
+    for start, end, n, _ in CONTROL_POINT_SEGMENTS:
+        t = np.arange(1, n + 1) / n
+        w = np.zeros((n, len(names)))
+        w[:, names.index(start)] += 1.0 - t
+        w[:, names.index(end)] += t
+        rows.append(w)
+    return names, np.concatenate(rows, axis=0)
+
+
+_CP_FRAMES, _CP_WEIGHTS = _segment_weights()
+
+
+def control_points(q: jax.Array) -> jax.Array:
+    """The 48 collision control points in the base frame, shape ``(48, 3)``.
+
+    Ordered by :data:`CONTROL_POINT_SEGMENTS`; radii in :data:`CONTROL_POINT_RADII`.
+    """
+    frames = link_frames(q)
+    ends = jnp.stack([frames[n][1] for n in _CP_FRAMES])
+    return jnp.asarray(_CP_WEIGHTS, dtype=ends.dtype) @ ends
+
+
+def end_effector(q: jax.Array) -> jax.Array:
+    """Grasp-target position (0.105 m along the hand z-axis), shape ``(3,)``."""
+    return link_frames(q)["grasp_target"][1]
+
+
+FRANKA = Robot(
+    name="franka",
+    dof=7,
+    workspace_dim=3,
+    q_lower=Q_LOWER,
+    q_upper=Q_UPPER,
+    qd_max=QD_MAX,
+    default_q=DEFAULT_Q,
+    control_point_radii=CONTROL_POINT_RADII,
+    control_points=control_points,
+    end_effector=end_effector,
+)

@@ -1,0 +1,370 @@
+"""Reproduce thesis Figs 3.2 and 3.3: RMP²-CLF vs RMPflow-GDS on 2-D point robots (§3.2.7).
+
+* **Fig 3.2** — one point robot with double-integrator dynamics reaches a goal past a circular
+  obstacle. Leaves: the RMPflow collision-avoidance GDS (obstacle) and a goal attractor that is
+  either RMP²-CLF (eq 3.32, ``P = I``) with the potential, spiral or sinusoidal nominal
+  controller, or the RMPflow goal-attractor GDS. Metric and potential are the same in all cases.
+* **Fig 3.3** — ``N`` point robots start on a circle and swap to the antipodal points; every
+  pair of robots has the collision-avoidance GDS on its distance. The spiral RMP²-CLF goal
+  attractor is compared with the GDS goal attractor; reported are the time until every robot is
+  within ``--tol`` of its goal and the minimum pairwise distance.
+
+The joint configuration is the stacked positions ``q ∈ R^{2N}``; the task map returns the goal
+offsets ``(N, 2)`` and the obstacle / pairwise distances ``(·, 1)``; ``mjxrmp.rmp2.acceleration``
+combines the leaves and a jitted ``lax.scan`` integrates with semi-implicit Euler.
+
+Usage: ``python scripts/reproduce_ch3.py [--out docs/figures] [--steps 6000]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from functools import partial
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+import mjxrmp  # noqa: E402, F401  (sets XLA flags before any JAX computation)
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+from mjxrmp import rmp2  # noqa: E402
+from mjxrmp.clf import (  # noqa: E402
+    clf_leaf,
+    potential_nominal,
+    quadratic_alpha,
+    sinusoidal_nominal,
+    spiral_nominal,
+)
+from mjxrmp.gds import family  # noqa: E402
+from mjxrmp.point_rmps import (  # noqa: E402
+    CollisionParams,
+    GoalAttractorParams,
+    collision_avoidance,
+    goal_attractor,
+    goal_metric,
+    goal_offsets,
+    goal_potential,
+    obstacle_distance,
+    pairwise_distances,
+)
+
+CONTROLLERS = ("gds", "potential", "spiral", "sinusoidal")
+
+# --- Fig 3.2 scene (the 2-D example accompanying RMPflow / RMP²-CLF) -------------------------
+SINGLE_GOAL = (-3.0, 3.0)
+SINGLE_OBSTACLE = (0.0, 0.0)
+SINGLE_OBSTACLE_RADIUS = 1.0
+SINGLE_START = (2.5, -3.2)
+SINGLE_START_VELOCITY = (-1.0, 1.0)
+SINGLE_COLLISION = CollisionParams(epsilon=0.2, alpha=1e-5, eta=0.0)
+
+# --- Fig 3.3 scene (multi-robot swap of Li et al. 2019) ---------------------------------------
+SWAP_ROBOTS = 8
+SWAP_RADIUS = 5.0  #: the robots start on, and swap across, a circle of this radius
+SWAP_SAFETY = 1.0  #: ``R`` of the pairwise distance ``x = d/R − 1``
+SWAP_NOISE = 0.05  #: std of the seeded perturbation of the start positions (breaks exact symmetry)
+SWAP_COLLISION = CollisionParams(epsilon=1e-8, alpha=1e-5, eta=0.0)
+
+#: Class-K function of the CLF goal attractors, ``α(s) = γ s²``; ``γ = η·w_l = 2`` matches the
+#: far-field dissipation of the GDS attractor's damping ``B = η w(x) I``.
+CLF_GAMMA = 2.0
+DT = 0.01
+
+
+def goal_leaf(controller: str, p: GoalAttractorParams, t: jax.Array, gamma: float = CLF_GAMMA):
+    """Single-subtask goal-attractor leaf for ``controller`` (GDS or RMP²-CLF with P = I)."""
+    if controller == "gds":
+        return goal_attractor(p)
+    Phi = goal_potential(p)
+    if controller == "potential":
+        nominal = potential_nominal(Phi)
+    elif controller == "spiral":
+        nominal = spiral_nominal(Phi)
+    elif controller == "sinusoidal":
+        nominal = sinusoidal_nominal(Phi, t)
+    else:
+        raise ValueError(f"controller must be one of {CONTROLLERS}, got {controller!r}")
+    return clf_leaf(nominal, goal_metric(p), Phi, quadratic_alpha(gamma), P="identity")
+
+
+def rollout(accel, q0: jax.Array, qd0: jax.Array, steps: int, dt: float = DT) -> jax.Array:
+    """Semi-implicit Euler ``q̇ ← q̇ + dt·q̈(q, q̇, t)``, ``q ← q + dt·q̇``; returns ``q`` of
+    every step, shape ``(steps + 1, d)``."""
+
+    def step(carry, k):
+        q, qd = carry
+        qdd = accel(q, qd, k * dt)
+        qd = qd + dt * qdd
+        q = q + dt * qd
+        return (q, qd), q
+
+    _, qs = jax.lax.scan(step, (q0, qd0), jnp.arange(steps, dtype=q0.dtype))
+    return jnp.concatenate([q0[None], qs], axis=0)
+
+
+# ---------------------------------------------------------------------------------------------
+# Fig 3.2: single robot, circular obstacle
+# ---------------------------------------------------------------------------------------------
+
+
+def _single_task_map(q, goal, center, t):
+    Y = q.reshape(1, 2)
+    return {"goal": goal_offsets(Y, goal[None]),
+            "obstacle": obstacle_distance(Y, center, SINGLE_OBSTACLE_RADIUS)}
+
+
+@partial(jax.jit, static_argnames=("controller", "steps", "gamma"))
+def simulate_single(controller: str, q0: jax.Array, qd0: jax.Array, steps: int,
+                    goal: jax.Array, center: jax.Array, gamma: float = CLF_GAMMA) -> jax.Array:
+    """Trajectory ``(steps + 1, 2)`` of the Fig 3.2 point robot under ``controller``."""
+    p = GoalAttractorParams()
+    obstacle = family(collision_avoidance(SINGLE_COLLISION))
+
+    def leaf_fn(x, xd, goal_, center_, t):
+        g = family(goal_leaf(controller, p, t, gamma))
+        return {"goal": g(x["goal"], xd["goal"]),
+                "obstacle": obstacle(x["obstacle"], xd["obstacle"])}
+
+    def accel(q, qd, t):
+        return rmp2.acceleration(_single_task_map, leaf_fn, q, qd, goal, center, t)
+
+    return rollout(accel, q0, qd0, steps)
+
+
+def run_fig3_2(steps: int = 4000) -> dict[str, np.ndarray]:
+    """Trajectories of the four controllers on the Fig 3.2 scene."""
+    q0 = jnp.asarray(SINGLE_START)
+    qd0 = jnp.asarray(SINGLE_START_VELOCITY)
+    goal = jnp.asarray(SINGLE_GOAL)
+    center = jnp.asarray(SINGLE_OBSTACLE)
+    return {c: np.asarray(simulate_single(c, q0, qd0, steps, goal, center)) for c in CONTROLLERS}
+
+
+# ---------------------------------------------------------------------------------------------
+# Fig 3.3: multi-robot antipodal swap
+# ---------------------------------------------------------------------------------------------
+
+
+def swap_scene(n: int = SWAP_ROBOTS, radius: float = SWAP_RADIUS, noise: float = SWAP_NOISE,
+               seed: int = 0) -> tuple[jax.Array, jax.Array]:
+    """Start positions ``(n, 2)`` on a circle (plus seeded noise) and antipodal goals ``(n, 2)``."""
+    theta = 2.0 * jnp.pi * jnp.arange(n) / n
+    ring = radius * jnp.stack([jnp.cos(theta), jnp.sin(theta)], axis=-1)
+    start = ring + noise * jax.random.normal(jax.random.PRNGKey(seed), ring.shape)
+    return start, -ring
+
+
+def _swap_task_map(q, goals, t):
+    Y = q.reshape(-1, 2)
+    return {"goal": goal_offsets(Y, goals), "pairs": pairwise_distances(Y, SWAP_SAFETY)}
+
+
+@partial(jax.jit, static_argnames=("controller", "steps", "gamma"))
+def simulate_swap(controller: str, start: jax.Array, goals: jax.Array, steps: int,
+                  gamma: float = CLF_GAMMA) -> jax.Array:
+    """Positions ``(steps + 1, N, 2)`` of the Fig 3.3 robots (starting at rest) under
+    ``controller`` (``"gds"`` or ``"spiral"``; any of :data:`CONTROLLERS` works)."""
+    p = GoalAttractorParams()
+    pairs = family(collision_avoidance(SWAP_COLLISION))
+
+    def leaf_fn(x, xd, goals_, t):
+        g = family(goal_leaf(controller, p, t, gamma))
+        return {"goal": g(x["goal"], xd["goal"]), "pairs": pairs(x["pairs"], xd["pairs"])}
+
+    def accel(q, qd, t):
+        return rmp2.acceleration(_swap_task_map, leaf_fn, q, qd, goals, t)
+
+    q0 = start.reshape(-1)
+    qs = rollout(accel, q0, jnp.zeros_like(q0), steps)
+    return qs.reshape(steps + 1, -1, 2)
+
+
+def swap_metrics(traj: np.ndarray, goals: np.ndarray, tol: float, dt: float = DT) -> dict:
+    """Time until all robots are within ``tol`` of their goals (and stay there), the minimum
+    pairwise distance, and the final largest goal error."""
+    traj = np.asarray(traj, dtype=np.float64)
+    err = np.linalg.norm(traj - np.asarray(goals)[None], axis=-1).max(axis=-1)  # (T,)
+    inside = err <= tol
+    # first index from which the team stays inside the tolerance until the end
+    outside = np.flatnonzero(~inside)
+    first = 0 if outside.size == 0 else int(outside[-1]) + 1
+    reached = first < len(err)
+    i, j = np.triu_indices(traj.shape[1], k=1)
+    dists = np.linalg.norm(traj[:, i] - traj[:, j], axis=-1)
+    return {
+        "reached": bool(reached),
+        "time_to_goal": float(first * dt) if reached else None,
+        "min_pair_distance": float(dists.min()),
+        "final_max_goal_error": float(err[-1]),
+        "finite": bool(np.all(np.isfinite(traj))),
+    }
+
+
+def run_fig3_3(steps: int = 6000, n: int = SWAP_ROBOTS, tol: float = 0.05, seeds=(0,)) -> dict:
+    """Swap trajectories and metrics for the spiral RMP²-CLF and GDS goal attractors."""
+    out = {"trajectories": {}, "metrics": {}, "per_seed": {}}
+    for controller in ("spiral", "gds"):
+        per_seed = []
+        for seed in seeds:
+            start, goals = swap_scene(n=n, seed=seed)
+            traj = np.asarray(simulate_swap(controller, start, goals, steps))
+            per_seed.append(swap_metrics(traj, np.asarray(goals), tol))
+            if seed == seeds[0]:
+                out["trajectories"][controller] = traj
+                out["metrics"][controller] = per_seed[-1]
+                out["goals"] = np.asarray(goals)
+                out["start"] = np.asarray(start)
+        out["per_seed"][controller] = per_seed
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Plots and report
+# ---------------------------------------------------------------------------------------------
+
+LABELS = {"potential": "potential", "spiral": "spiral", "sinusoidal": "sinusoidal",
+          "gds": "RMPflow-GDS"}
+COLORS = {"potential": "tab:blue", "spiral": "tab:orange", "sinusoidal": "tab:green",
+          "gds": "tab:red"}
+
+
+def plot_fig3_2(trajs: dict, path: str) -> None:
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 5))
+    panels = [("(a) RMP²-CLF, three nominal controllers", ("potential", "spiral", "sinusoidal")),
+              ("(b) RMPflow-GDS goal attractor", ("gds",))]
+    for ax, (title, names) in zip(axes, panels, strict=True):
+        ax.add_patch(plt.Circle(SINGLE_OBSTACLE, SINGLE_OBSTACLE_RADIUS, color="0.6"))
+        for c in names:
+            tr = trajs[c]
+            ax.plot(tr[:, 0], tr[:, 1], color=COLORS[c], lw=1.6, label=LABELS[c])
+        ax.plot(*SINGLE_GOAL, marker="*", ms=14, color="tab:green", mec="k", ls="none",
+                label="goal")
+        ax.plot(*SINGLE_START, marker="o", ms=7, color="k", ls="none", label="start")
+        ax.set_xlim(-5, 5)
+        ax.set_ylim(-5, 5)
+        ax.set_aspect("equal")
+        ax.set_title(title)
+        ax.legend(loc="lower left", fontsize=8)
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_fig3_3(res: dict, tol: float, path: str) -> None:
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(15, 5))
+    goals, start = res["goals"], res["start"]
+    n = goals.shape[0]
+    cmap = plt.get_cmap("tab10")
+    titles = {"spiral": "(a) RMP²-CLF, spiral nominal", "gds": "(b) RMPflow-GDS"}
+    lim = 1.25 * float(np.abs(goals).max())
+    for ax, c in zip(axes[:2], ("spiral", "gds"), strict=True):
+        tr = res["trajectories"][c]
+        for i in range(n):
+            ax.plot(tr[:, i, 0], tr[:, i, 1], color=cmap(i % 10), lw=1.2)
+            ax.plot(*start[i], "o", color=cmap(i % 10), ms=6)
+            ax.plot(*goals[i], "*", color=cmap(i % 10), ms=12, mec="k")
+        m = res["metrics"][c]
+        ttg = f"{m['time_to_goal']:.1f} s" if m["reached"] else "not reached"
+        ax.set_title(f"{titles[c]}\ntime to goal {ttg}, min dist {m['min_pair_distance']:.2f}")
+        ax.set_xlim(-lim, lim)
+        ax.set_ylim(-lim, lim)
+        ax.set_aspect("equal")
+        ax.grid(alpha=0.3)
+    ax = axes[2]
+    for c in ("spiral", "gds"):
+        tr = res["trajectories"][c]
+        err = np.linalg.norm(tr - goals[None], axis=-1).max(axis=-1)
+        ax.semilogy(np.arange(len(err)) * DT, err, color=COLORS[c], label=LABELS[c] if c == "gds"
+                    else "RMP²-CLF spiral")
+    ax.axhline(tol, color="k", ls="--", lw=0.8, label=f"tolerance {tol}")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("max distance to goal")
+    ax.set_title("(c) largest goal error")
+    ax.legend()
+    ax.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def fig3_3_record(res: dict, steps: int, tol: float, seeds) -> dict:
+    """The JSON record written to ``fig3_3.json``."""
+    return {
+        "figure": "3.3",
+        "n_robots": int(res["goals"].shape[0]),
+        "circle_radius": SWAP_RADIUS,
+        "safety_radius": SWAP_SAFETY,
+        "start_noise_std": SWAP_NOISE,
+        "dt": DT,
+        "steps": steps,
+        "horizon_s": steps * DT,
+        "goal_tolerance": tol,
+        "clf_alpha": f"alpha(s) = {CLF_GAMMA} s^2",
+        "clf_P": "identity",
+        "seeds": list(seeds),
+        "spiral_clf": res["metrics"]["spiral"],
+        "gds": res["metrics"]["gds"],
+        "per_seed": res["per_seed"],
+    }
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default="docs/figures", help="output directory")
+    parser.add_argument("--steps", type=int, default=6000,
+                        help="integration steps (dt = 0.01) for Fig 3.3; Fig 3.2 uses 2/3 of it")
+    parser.add_argument("--robots", type=int, default=SWAP_ROBOTS)
+    parser.add_argument("--tol", type=float, default=0.05, help="goal tolerance for Fig 3.3")
+    parser.add_argument("--seeds", type=int, default=4,
+                        help="start-noise seeds for Fig 3.3 (the first is plotted)")
+    args = parser.parse_args(argv)
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    os.makedirs(args.out, exist_ok=True)
+
+    t0 = time.perf_counter()
+    trajs = run_fig3_2(steps=max(1, (2 * args.steps) // 3))
+    plot_fig3_2(trajs, os.path.join(args.out, "fig3_2.png"))
+    t1 = time.perf_counter()
+    seeds = tuple(range(args.seeds))
+    res = run_fig3_3(steps=args.steps, n=args.robots, tol=args.tol, seeds=seeds)
+    plot_fig3_3(res, args.tol, os.path.join(args.out, "fig3_3.png"))
+    record = fig3_3_record(res, args.steps, args.tol, seeds)
+    with open(os.path.join(args.out, "fig3_3.json"), "w") as fh:
+        json.dump(record, fh, indent=2)
+    t2 = time.perf_counter()
+
+    def fmt(v):
+        return "never" if v is None else f"{v:.2f}"
+
+    print(f"Fig 3.2: final distance to goal ({t1 - t0:.1f} s)")
+    for c in CONTROLLERS:
+        d = float(np.linalg.norm(trajs[c][-1] - np.asarray(SINGLE_GOAL)))
+        clearance = float(np.min(np.linalg.norm(trajs[c] - np.asarray(SINGLE_OBSTACLE), axis=-1))
+                          - SINGLE_OBSTACLE_RADIUS)
+        print(f"  {LABELS[c]:<12} goal error {d:.4f}   min obstacle clearance {clearance:.3f}")
+    print(f"Fig 3.3: {record['n_robots']} robots, tolerance {args.tol}, horizon "
+          f"{record['horizon_s']:.0f} s ({t2 - t1:.1f} s)")
+    print(f"  {'controller':<16}{'seed':>5}{'time-to-goal [s]':>18}{'min pair dist':>15}")
+    for name, key in (("RMP²-CLF spiral", "spiral"), ("RMPflow-GDS", "gds")):
+        for seed, m in zip(seeds, res["per_seed"][key], strict=True):
+            print(f"  {name:<16}{seed:>5}{fmt(m['time_to_goal']):>18}"
+                  f"{m['min_pair_distance']:>15.3f}")
+    return record
+
+
+if __name__ == "__main__":
+    main()
