@@ -38,9 +38,11 @@ Nominal = Callable[[jax.Array, jax.Array], jax.Array]
 ClassK = Callable[[jax.Array], jax.Array]
 
 P_CHOICES = ("identity", "inverse_metric")
+SPEEDS = ("euclidean", "metric")
 
 __all__ = [
     "P_CHOICES",
+    "SPEEDS",
     "clf_bound",
     "clf_leaf",
     "linear_alpha",
@@ -123,14 +125,29 @@ def sinusoidal_nominal(
     return nominal
 
 
+def _speed(kind: str, Gx: jax.Array, xd: jax.Array) -> jax.Array:
+    if kind == "euclidean":
+        return safe_norm(xd)
+    sq = jnp.maximum(xd @ Gx @ xd, 0.0)
+    pos = sq > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, sq, 1.0)), 0.0)
+
+
 def clf_bound(
-    G: Metric, Phi: Potential, alpha: ClassK, x: jax.Array, xd: jax.Array
+    G: Metric, Phi: Potential, alpha: ClassK, x: jax.Array, xd: jax.Array,
+    speed: str = "euclidean",
 ) -> tuple[jax.Array, jax.Array]:
     """``(M, b)``: the inertia ``M = G + Ξ_G`` and the right-hand side of eq 3.30,
-    ``b = −ẋᵀ(∇Φ + ξ_G) − α(‖ẋ‖)``, so that the constraint reads ``ẋᵀ f ≤ b``."""
+    ``b = −ẋᵀ(∇Φ + ξ_G) − α(s)``, so that the constraint reads ``ẋᵀ f ≤ b``.
+
+    ``s = ‖ẋ‖`` (``speed="euclidean"``, eq 3.30) or the Riemannian speed
+    ``s = ‖ẋ‖_G = √(ẋᵀGẋ)`` (``speed="metric"``, see :func:`clf_leaf`)."""
+    if speed not in SPEEDS:
+        raise ValueError(f"speed must be one of {SPEEDS}, got {speed!r}")
     Xi, xi = curvature_terms(G, x, xd)
-    M = G(x, xd) + Xi
-    b = -xd @ (potential_gradient(Phi, x) + xi) - alpha(safe_norm(xd))
+    Gx = G(x, xd)
+    M = Gx + Xi
+    b = -xd @ (potential_gradient(Phi, x) + xi) - alpha(_speed(speed, Gx, xd))
     return M, b
 
 
@@ -153,6 +170,7 @@ def clf_leaf(
     Phi: Potential,
     alpha: ClassK | None = None,
     P: str = "identity",
+    speed: str = "euclidean",
 ) -> Callable[[jax.Array, jax.Array], RMP]:
     """RMP²-CLF leaf ``(x (m,), ẋ (m,)) -> RMP(M = G + Ξ_G, f*)`` for one subtask (eq 3.32).
 
@@ -161,9 +179,17 @@ def clf_leaf(
     ``Phi(x) -> ()`` define the subtask energy of eq 3.15; ``alpha`` is a class-K function
     (default :func:`quadratic_alpha` ``(1.0)``, i.e. ``α(s) = s²``); ``P`` is ``"identity"``
     or ``"inverse_metric"``. Lift to a family with :func:`mjxrmp.gds.family`.
+
+    ``speed`` chooses the argument of ``α``: ``"euclidean"`` is ``‖ẋ‖`` exactly as in eq 3.30;
+    ``"metric"`` uses the Riemannian speed ``‖ẋ‖_G = √(ẋᵀGẋ)``, so ``α = γ s²`` demands the
+    dissipation ``γ ẋᵀGẋ`` of a GDS with damping ``B = γG``. Because ``G ⪰ λ I`` with
+    ``λ > 0`` for the metrics used here, ``γ‖ẋ‖²_G ≥ γλ‖ẋ‖²``: Condition 3.2.2 then holds with
+    the class-K function ``s ↦ α(√λ s)`` and Theorems 3.2.1–3.2.2 apply unchanged.
     """
     if P not in P_CHOICES:
         raise ValueError(f"P must be one of {P_CHOICES}, got {P!r}")
+    if speed not in SPEEDS:
+        raise ValueError(f"speed must be one of {SPEEDS}, got {speed!r}")
     alpha = quadratic_alpha(1.0) if alpha is None else alpha
 
     def leaf(x: jax.Array, xd: jax.Array) -> RMP:
@@ -174,7 +200,7 @@ def clf_leaf(
                 f"x and xd must be single subtask vectors of equal shape (m,), got {x.shape}, "
                 f"{xd.shape}; lift to a family with mjxrmp.gds.family"
             )
-        M, b = clf_bound(G, Phi, alpha, x, xd)
+        M, b = clf_bound(G, Phi, alpha, x, xd, speed)
         f0 = nominal(x, xd)
         if f0.shape != x.shape:
             raise ValueError(f"nominal(x, xd) must return a force of shape {x.shape}, "

@@ -46,8 +46,6 @@ def _validate(obj: Any) -> None:
 
 def param_dataclass(cls: type[T]) -> type[T]:
     """Make ``cls`` a frozen, validated dataclass registered as a JAX pytree (all fields data)."""
-    cls = dataclasses.dataclass(frozen=True)(cls)
-    names = tuple(f.name for f in dataclasses.fields(cls))
     user_post_init = getattr(cls, "__post_init__", None)
 
     def __post_init__(self: Any) -> None:
@@ -55,7 +53,10 @@ def param_dataclass(cls: type[T]) -> type[T]:
         if user_post_init is not None:
             user_post_init(self)
 
+    # Set before the dataclass transform so the generated __init__ calls it.
     cls.__post_init__ = __post_init__
+    cls = dataclasses.dataclass(frozen=True)(cls)
+    names = tuple(f.name for f in dataclasses.fields(cls))
 
     def flatten(obj: Any) -> tuple[tuple[Any, ...], None]:
         return tuple(getattr(obj, n) for n in names), None

@@ -74,10 +74,12 @@ SWAP_COLLISION = CollisionParams(epsilon=1e-8, alpha=1e-5, eta=0.0)
 #: Class-K function of the CLF goal attractors, ``α(s) = γ s²``; ``γ = η·w_l = 2`` matches the
 #: far-field dissipation of the GDS attractor's damping ``B = η w(x) I``.
 CLF_GAMMA = 2.0
+CLF_SPEED = "metric"
 DT = 0.01
 
 
-def goal_leaf(controller: str, p: GoalAttractorParams, t: jax.Array, gamma: float = CLF_GAMMA):
+def goal_leaf(controller: str, p: GoalAttractorParams, t: jax.Array, gamma: float = CLF_GAMMA,
+              speed: str = CLF_SPEED):
     """Single-subtask goal-attractor leaf for ``controller`` (GDS or RMP²-CLF with P = I)."""
     if controller == "gds":
         return goal_attractor(p)
@@ -90,7 +92,8 @@ def goal_leaf(controller: str, p: GoalAttractorParams, t: jax.Array, gamma: floa
         nominal = sinusoidal_nominal(Phi, t)
     else:
         raise ValueError(f"controller must be one of {CONTROLLERS}, got {controller!r}")
-    return clf_leaf(nominal, goal_metric(p), Phi, quadratic_alpha(gamma), P="identity")
+    return clf_leaf(nominal, goal_metric(p), Phi, quadratic_alpha(gamma), P="identity",
+                    speed=speed)
 
 
 def rollout(accel, q0: jax.Array, qd0: jax.Array, steps: int, dt: float = DT) -> jax.Array:
@@ -119,15 +122,16 @@ def _single_task_map(q, goal, center, t):
             "obstacle": obstacle_distance(Y, center, SINGLE_OBSTACLE_RADIUS)}
 
 
-@partial(jax.jit, static_argnames=("controller", "steps", "gamma"))
+@partial(jax.jit, static_argnames=("controller", "steps", "gamma", "speed"))
 def simulate_single(controller: str, q0: jax.Array, qd0: jax.Array, steps: int,
-                    goal: jax.Array, center: jax.Array, gamma: float = CLF_GAMMA) -> jax.Array:
+                    goal: jax.Array, center: jax.Array, gamma: float = CLF_GAMMA,
+                    speed: str = CLF_SPEED) -> jax.Array:
     """Trajectory ``(steps + 1, 2)`` of the Fig 3.2 point robot under ``controller``."""
     p = GoalAttractorParams()
     obstacle = family(collision_avoidance(SINGLE_COLLISION))
 
     def leaf_fn(x, xd, goal_, center_, t):
-        g = family(goal_leaf(controller, p, t, gamma))
+        g = family(goal_leaf(controller, p, t, gamma, speed))
         return {"goal": g(x["goal"], xd["goal"]),
                 "obstacle": obstacle(x["obstacle"], xd["obstacle"])}
 
@@ -165,16 +169,16 @@ def _swap_task_map(q, goals, t):
     return {"goal": goal_offsets(Y, goals), "pairs": pairwise_distances(Y, SWAP_SAFETY)}
 
 
-@partial(jax.jit, static_argnames=("controller", "steps", "gamma"))
+@partial(jax.jit, static_argnames=("controller", "steps", "gamma", "speed"))
 def simulate_swap(controller: str, start: jax.Array, goals: jax.Array, steps: int,
-                  gamma: float = CLF_GAMMA) -> jax.Array:
+                  gamma: float = CLF_GAMMA, speed: str = CLF_SPEED) -> jax.Array:
     """Positions ``(steps + 1, N, 2)`` of the Fig 3.3 robots (starting at rest) under
     ``controller`` (``"gds"`` or ``"spiral"``; any of :data:`CONTROLLERS` works)."""
     p = GoalAttractorParams()
     pairs = family(collision_avoidance(SWAP_COLLISION))
 
     def leaf_fn(x, xd, goals_, t):
-        g = family(goal_leaf(controller, p, t, gamma))
+        g = family(goal_leaf(controller, p, t, gamma, speed))
         return {"goal": g(x["goal"], xd["goal"]), "pairs": pairs(x["pairs"], xd["pairs"])}
 
     def accel(q, qd, t):
@@ -206,21 +210,40 @@ def swap_metrics(traj: np.ndarray, goals: np.ndarray, tol: float, dt: float = DT
     }
 
 
-def run_fig3_3(steps: int = 6000, n: int = SWAP_ROBOTS, tol: float = 0.05, seeds=(0,)) -> dict:
-    """Swap trajectories and metrics for the spiral RMP²-CLF and GDS goal attractors."""
-    out = {"trajectories": {}, "metrics": {}, "per_seed": {}}
-    for controller in ("spiral", "gds"):
+#: Fig 3.3 variants: name -> (goal-attractor controller, argument of the CLF's class-K function).
+SWAP_VARIANTS = {
+    "spiral_clf": ("spiral", "metric"),
+    "gds": ("gds", "metric"),
+    # ablation: α of the Euclidean speed exactly as written in eq 3.30
+    "spiral_clf_euclidean_alpha": ("spiral", "euclidean"),
+}
+
+
+def run_fig3_3(steps: int = 6000, n: int = SWAP_ROBOTS, tol: float = 0.05, seeds=(0,),
+               variants=tuple(SWAP_VARIANTS), symmetric: bool = True) -> dict:
+    """Swap trajectories and metrics for the spiral RMP²-CLF and GDS goal attractors.
+
+    Every variant runs from the same seeded starts (``seeds``; the first is plotted) and, with
+    ``symmetric``, once more from the exactly symmetric start (no noise).
+    """
+    out = {"trajectories": {}, "metrics": {}, "per_seed": {}, "symmetric_start": {}}
+    for name in variants:
+        controller, speed = SWAP_VARIANTS[name]
         per_seed = []
         for seed in seeds:
             start, goals = swap_scene(n=n, seed=seed)
-            traj = np.asarray(simulate_swap(controller, start, goals, steps))
+            traj = np.asarray(simulate_swap(controller, start, goals, steps, speed=speed))
             per_seed.append(swap_metrics(traj, np.asarray(goals), tol))
             if seed == seeds[0]:
-                out["trajectories"][controller] = traj
-                out["metrics"][controller] = per_seed[-1]
+                out["trajectories"][name] = traj
+                out["metrics"][name] = per_seed[-1]
                 out["goals"] = np.asarray(goals)
                 out["start"] = np.asarray(start)
-        out["per_seed"][controller] = per_seed
+        out["per_seed"][name] = per_seed
+        if symmetric:
+            start, goals = swap_scene(n=n, noise=0.0)
+            traj = np.asarray(simulate_swap(controller, start, goals, steps, speed=speed))
+            out["symmetric_start"][name] = swap_metrics(traj, np.asarray(goals), tol)
     return out
 
 
@@ -266,9 +289,9 @@ def plot_fig3_3(res: dict, tol: float, path: str) -> None:
     goals, start = res["goals"], res["start"]
     n = goals.shape[0]
     cmap = plt.get_cmap("tab10")
-    titles = {"spiral": "(a) RMP²-CLF, spiral nominal", "gds": "(b) RMPflow-GDS"}
+    titles = {"spiral_clf": "(a) RMP²-CLF, spiral nominal", "gds": "(b) RMPflow-GDS"}
     lim = 1.25 * float(np.abs(goals).max())
-    for ax, c in zip(axes[:2], ("spiral", "gds"), strict=True):
+    for ax, c in zip(axes[:2], ("spiral_clf", "gds"), strict=True):
         tr = res["trajectories"][c]
         for i in range(n):
             ax.plot(tr[:, i, 0], tr[:, i, 1], color=cmap(i % 10), lw=1.2)
@@ -282,11 +305,15 @@ def plot_fig3_3(res: dict, tol: float, path: str) -> None:
         ax.set_aspect("equal")
         ax.grid(alpha=0.3)
     ax = axes[2]
-    for c in ("spiral", "gds"):
+    styles = {"spiral_clf": ("tab:orange", "-", "RMP²-CLF spiral"),
+              "gds": ("tab:red", "-", "RMPflow-GDS"),
+              "spiral_clf_euclidean_alpha": ("tab:orange", ":", "RMP²-CLF spiral, α(‖ẋ‖)")}
+    for c, (color, ls, label) in styles.items():
+        if c not in res["trajectories"]:
+            continue
         tr = res["trajectories"][c]
         err = np.linalg.norm(tr - goals[None], axis=-1).max(axis=-1)
-        ax.semilogy(np.arange(len(err)) * DT, err, color=COLORS[c], label=LABELS[c] if c == "gds"
-                    else "RMP²-CLF spiral")
+        ax.semilogy(np.arange(len(err)) * DT, err, color=color, ls=ls, label=label)
     ax.axhline(tol, color="k", ls="--", lw=0.8, label=f"tolerance {tol}")
     ax.set_xlabel("time [s]")
     ax.set_ylabel("max distance to goal")
@@ -300,7 +327,20 @@ def plot_fig3_3(res: dict, tol: float, path: str) -> None:
 
 def fig3_3_record(res: dict, steps: int, tol: float, seeds) -> dict:
     """The JSON record written to ``fig3_3.json``."""
-    return {
+    def summary(name):
+        runs = res["per_seed"][name]
+        times = [m["time_to_goal"] for m in runs]
+        return {
+            "seed0": res["metrics"][name],
+            "time_to_goal_per_seed": times,
+            "min_pair_distance_per_seed": [m["min_pair_distance"] for m in runs],
+            "reached_all_seeds": all(m["reached"] for m in runs),
+            "mean_time_to_goal": (float(np.mean(times)) if all(t is not None for t in times)
+                                  else None),
+            "symmetric_start": res["symmetric_start"].get(name),
+        }
+
+    record = {
         "figure": "3.3",
         "n_robots": int(res["goals"].shape[0]),
         "circle_radius": SWAP_RADIUS,
@@ -310,13 +350,16 @@ def fig3_3_record(res: dict, steps: int, tol: float, seeds) -> dict:
         "steps": steps,
         "horizon_s": steps * DT,
         "goal_tolerance": tol,
-        "clf_alpha": f"alpha(s) = {CLF_GAMMA} s^2",
+        "clf_alpha": f"alpha(s) = {CLF_GAMMA} s^2, s = Riemannian speed sqrt(xd^T G xd)",
         "clf_P": "identity",
+        "gds_damping": "B = eta w(x) I, eta = 2",
         "seeds": list(seeds),
-        "spiral_clf": res["metrics"]["spiral"],
-        "gds": res["metrics"]["gds"],
-        "per_seed": res["per_seed"],
+        "time_to_goal_definition": "first time after which every robot stays within "
+                                   "goal_tolerance of its goal (null: never within horizon)",
     }
+    for name in res["per_seed"]:
+        record[name] = summary(name)
+    return record
 
 
 def main(argv=None) -> dict:
@@ -358,10 +401,13 @@ def main(argv=None) -> dict:
         print(f"  {LABELS[c]:<12} goal error {d:.4f}   min obstacle clearance {clearance:.3f}")
     print(f"Fig 3.3: {record['n_robots']} robots, tolerance {args.tol}, horizon "
           f"{record['horizon_s']:.0f} s ({t2 - t1:.1f} s)")
-    print(f"  {'controller':<16}{'seed':>5}{'time-to-goal [s]':>18}{'min pair dist':>15}")
-    for name, key in (("RMP²-CLF spiral", "spiral"), ("RMPflow-GDS", "gds")):
-        for seed, m in zip(seeds, res["per_seed"][key], strict=True):
-            print(f"  {name:<16}{seed:>5}{fmt(m['time_to_goal']):>18}"
+    print(f"  {'variant':<28}{'seed':>9}{'time-to-goal [s]':>18}{'min pair dist':>15}")
+    for name in res["per_seed"]:
+        rows = [(str(seed), m) for seed, m in zip(seeds, res["per_seed"][name], strict=True)]
+        if name in res["symmetric_start"]:
+            rows.append(("symmetric", res["symmetric_start"][name]))
+        for label, m in rows:
+            print(f"  {name:<28}{label:>9}{fmt(m['time_to_goal']):>18}"
                   f"{m['min_pair_distance']:>15.3f}")
     return record
 
