@@ -267,7 +267,7 @@ def test_energy_matches_manual_sum():
 # ---------------------------------------------------------------------------------------------
 
 GOAL = (0.35, 0.35)
-OBSTACLE = (0.62, 0.22)
+OBSTACLE = (0.7, 0.3)
 OBSTACLE_RADIUS = 0.08
 ARM_GOAL = GoalAttractorParams(w_u=10.0, w_l=1.0, sigma=0.2, alpha=10.0, eta=2.0, gain=1.0)
 ARM_COLLISION = CollisionParams(epsilon=0.2, alpha=1e-5, eta=0.0)
@@ -337,12 +337,12 @@ def test_gds_closed_loop_lyapunov_and_invariant_set(solver):
 
     q0 = jnp.array([0.2, -0.4, 0.3])
     qd0 = jnp.array([0.5, -0.3, 0.2])
-    dt, steps = 0.01, 2500
+    dt, steps = 0.01, 2000
     qs, qds = jax.jit(lambda a, b: _rk4_rollout(accel, a, b, dt, steps))(q0, qd0)
     V = np.asarray(jax.vmap(lambda q, qd: _arm_energy(q, qd, goal, center))(qs, qds))
     assert np.all(np.isfinite(V))
     dV = np.diff(V)
-    tol = 1e-9 if solver == "exact" else 1e-4 * V[0]
+    tol = 1e-9 if solver == "exact" else 1e-6 * V[0]
     assert dV.max() <= tol, f"V increased by {dV.max():.3g}"
     assert V[-1] < 0.05 * V[0]
     # invariant set C∞^Φ of eq 3.28: q̇ → 0 and ∇_qΦ → 0

@@ -1,0 +1,1 @@
+"""Learners: PPO and learning from demonstrations (built in later milestones)."""

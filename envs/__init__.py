@@ -1,0 +1,1 @@
+"""MJX reaching environments with the brax Env API (built in the envs milestone)."""

@@ -1,0 +1,1 @@
+"""Offline data and learners: ATAC, MAHALO and baselines (built in later milestones)."""
