@@ -84,7 +84,8 @@ def _rot90(v: jax.Array) -> jax.Array:
     """``R(π/2) v`` for a planar vector (counter-clockwise quarter turn)."""
     if v.shape[-1] != 2:
         raise ValueError(
-            f"the spiral/sinusoidal nominals are planar (m = 2), got subtask dimension {v.shape[-1]}"
+            "the spiral/sinusoidal nominals are planar (m = 2), "
+            f"got subtask dimension {v.shape[-1]}"
         )
     return jnp.stack([-v[..., 1], v[..., 0]], axis=-1)
 

@@ -15,7 +15,8 @@ Riemannian motion policies"):
   ``Φ(r) = gain·[w_l log cosh(α r)/α + (w_u − w_l) ∫₀ʳ exp(−ρ²/2σ²) tanh(αρ) dρ]``;
   the first part is closed form (the ``α⁻¹ log cosh`` soft norm), the second is a fixed
   Gauss–Legendre quadrature (its integrand is negligible beyond ``10σ``), and the gradient is
-  the exact published expression (a ``custom_jvp``), smooth at ``x = 0``;
+  the exact published expression (a ``custom_jvp``), smooth at ``x = 0`` (the companion code
+  zeroes it within 0.005 of the goal; the smooth form needs no such switch);
 * damping ``B(x) = η w(x) I`` (``η = 2``).
 
 **Collision avoidance** on the 1-D distance ``x = ‖y − c‖/R − 1`` (zero on the obstacle

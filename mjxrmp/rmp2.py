@@ -156,15 +156,29 @@ def task_jacobian(task_map: TaskMap, q: jax.Array, *ctx: Any):
 
 
 def _accumulate(J_leaves, rmps: list[RMP], c_leaves=None) -> RMP:
-    """``M = Σ Jᵀ M_k J`` and ``f = Σ Jᵀ (f_k − M_k c_k)`` over families (eq 3.31)."""
-    M_root = 0.0
-    f_root = 0.0
+    """``M = Σ Jᵀ M_k J`` and ``f = Σ Jᵀ (f_k − M_k c_k)`` over families (eq 3.31).
+
+    Families of equal subtask dimension are concatenated first, so each dimension costs one
+    contraction however many families share it (fewer kernels: lower single-state latency).
+    Scalar families (collision distances, joint limits, velocity caps) reduce to
+    ``(w ⊙ J)ᵀ J``.
+    """
+    groups: dict[int, list[tuple[jax.Array, jax.Array, jax.Array]]] = {}
     for i, (J, (M, f)) in enumerate(zip(J_leaves, rmps, strict=True)):
-        MJ = jnp.einsum("nab,nbj->naj", M, J)
-        M_root = M_root + jnp.einsum("nai,naj->ij", J, MJ)
         if c_leaves is not None:
             f = f - jnp.einsum("nab,nb->na", M, c_leaves[i])
-        f_root = f_root + jnp.einsum("nai,na->i", J, f)
+        groups.setdefault(J.shape[1], []).append((J, M, f))
+    M_root = 0.0
+    f_root = 0.0
+    for m, members in sorted(groups.items()):
+        J, M, f = (jnp.concatenate(parts, axis=0) for parts in zip(*members, strict=True))
+        if m == 1:
+            J1 = J[:, 0, :]
+            M_root = M_root + (J1 * M[:, 0, 0, None]).T @ J1
+            f_root = f_root + J1.T @ f[:, 0]
+        else:
+            M_root = M_root + jnp.einsum("nai,nab,nbj->ij", J, M, J)
+            f_root = f_root + jnp.einsum("nai,na->i", J, f)
     return RMP(M_root, f_root)
 
 

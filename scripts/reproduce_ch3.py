@@ -11,7 +11,19 @@
 
 The joint configuration is the stacked positions ``q ∈ R^{2N}``; the task map returns the goal
 offsets ``(N, 2)`` and the obstacle / pairwise distances ``(·, 1)``; ``mjxrmp.rmp2.acceleration``
-combines the leaves and a jitted ``lax.scan`` integrates with semi-implicit Euler.
+combines the leaves and a jitted ``lax.scan`` integrates with semi-implicit Euler (dt = 0.01).
+
+Choices the thesis leaves open (documented, not tuned per figure):
+
+* RMPflow constants for both GDSs (see :mod:`mjxrmp.point_rmps`); 8 robots on a circle of radius
+  5, pairwise safety radius 1, start positions perturbed by seeded noise of std 0.05 (plus one
+  exactly symmetric start), goal tolerance 0.05.
+* CLF class-K function ``α = γ s²`` with ``γ = 2`` applied to the Riemannian speed
+  ``s = ‖ẋ‖_G`` (``clf_leaf(..., speed="metric")``): it demands the same dissipation
+  ``2 ẋᵀGẋ`` as the GDS attractor's damping ``B = 2 w(x) I``, so the two attractors differ only
+  in their nominal behaviour. With ``α`` of the Euclidean speed exactly as in eq 3.30 the spiral
+  still avoids the deadlock but its final approach is slow (dissipation ``2‖ẋ‖²`` against a
+  metric ``w = 10`` at the goal); that variant is reported as ``spiral_clf_euclidean_alpha``.
 
 Usage: ``python scripts/reproduce_ch3.py [--out docs/figures] [--steps 6000]``.
 """
@@ -27,22 +39,21 @@ from functools import partial
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-import mjxrmp  # noqa: E402, F401  (sets XLA flags before any JAX computation)
+import jax
+import jax.numpy as jnp
+import numpy as np
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-
-from mjxrmp import rmp2  # noqa: E402
-from mjxrmp.clf import (  # noqa: E402
+import mjxrmp  # noqa: F401  (sets XLA flags before any JAX computation)
+from mjxrmp import rmp2
+from mjxrmp.clf import (
     clf_leaf,
     potential_nominal,
     quadratic_alpha,
     sinusoidal_nominal,
     spiral_nominal,
 )
-from mjxrmp.gds import family  # noqa: E402
-from mjxrmp.point_rmps import (  # noqa: E402
+from mjxrmp.gds import family
+from mjxrmp.point_rmps import (
     CollisionParams,
     GoalAttractorParams,
     collision_avoidance,
@@ -71,9 +82,9 @@ SWAP_SAFETY = 1.0  #: ``R`` of the pairwise distance ``x = d/R − 1``
 SWAP_NOISE = 0.05  #: std of the seeded perturbation of the start positions (breaks exact symmetry)
 SWAP_COLLISION = CollisionParams(epsilon=1e-8, alpha=1e-5, eta=0.0)
 
-#: Class-K function of the CLF goal attractors, ``α(s) = γ s²``; ``γ = η·w_l = 2`` matches the
-#: far-field dissipation of the GDS attractor's damping ``B = η w(x) I``.
+#: Class-K function of the CLF goal attractors, ``α(s) = γ s²`` with ``γ = η = 2`` ...
 CLF_GAMMA = 2.0
+#: ... of the Riemannian speed ``s = ‖ẋ‖_G``: the dissipation of the GDS damping ``B = η w(x) I``.
 CLF_SPEED = "metric"
 DT = 0.01
 
@@ -260,7 +271,7 @@ COLORS = {"potential": "tab:blue", "spiral": "tab:orange", "sinusoidal": "tab:gr
 def plot_fig3_2(trajs: dict, path: str) -> None:
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 5))
+    fig, axes = plt.subplots(1, 2, figsize=(10, 5), layout="constrained")
     panels = [("(a) RMP²-CLF, three nominal controllers", ("potential", "spiral", "sinusoidal")),
               ("(b) RMPflow-GDS goal attractor", ("gds",))]
     for ax, (title, names) in zip(axes, panels, strict=True):
@@ -277,15 +288,14 @@ def plot_fig3_2(trajs: dict, path: str) -> None:
         ax.set_title(title)
         ax.legend(loc="lower left", fontsize=8)
         ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=120, bbox_inches="tight", pad_inches=0.15)
     plt.close(fig)
 
 
 def plot_fig3_3(res: dict, tol: float, path: str) -> None:
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(15, 5))
+    fig, axes = plt.subplots(1, 3, figsize=(15, 5.4), layout="constrained")
     goals, start = res["goals"], res["start"]
     n = goals.shape[0]
     cmap = plt.get_cmap("tab10")
@@ -320,8 +330,7 @@ def plot_fig3_3(res: dict, tol: float, path: str) -> None:
     ax.set_title("(c) largest goal error")
     ax.legend()
     ax.grid(alpha=0.3, which="both")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=120, bbox_inches="tight", pad_inches=0.15)
     plt.close(fig)
 
 

@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
 import mjxrmp  # noqa: F401  (XLA flags first)
-
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-
-from mjxrmp import rmp2  # noqa: E402
-from mjxrmp.gds import (  # noqa: E402
+from mjxrmp import rmp2
+from mjxrmp.gds import (
     curvature_terms,
     energy,
     family,
@@ -19,7 +18,7 @@ from mjxrmp.gds import (  # noqa: E402
     inertia,
     subtask_energy,
 )
-from mjxrmp.point_rmps import (  # noqa: E402
+from mjxrmp.point_rmps import (
     CollisionParams,
     GoalAttractorParams,
     collision_avoidance,
@@ -32,8 +31,8 @@ from mjxrmp.point_rmps import (  # noqa: E402
     obstacle_distance,
     pairwise_distances,
 )
-from mjxrmp.rmp import RMP  # noqa: E402
-from mjxrmp.robots.three_link import control_points, end_effector  # noqa: E402
+from mjxrmp.rmp import RMP
+from mjxrmp.robots.three_link import control_points, end_effector
 
 
 @pytest.fixture(autouse=True)
@@ -332,7 +331,6 @@ def test_gds_closed_loop_lyapunov_and_invariant_set(solver):
         if solver == "exact":  # unregularised M⁻¹f: Proposition 3.2.1 holds exactly
             M, f = rmp2.pullback(_arm_task_map, _arm_leaf_fn, q, qd, goal, center)
             return jnp.linalg.solve(M, f)
-        # rmp2.resolve adds 1e-3·I after scaling: V̇ picks up −1e-3·s·q̇ᵀq̈, so allow a tolerance
         return rmp2.acceleration(_arm_task_map, _arm_leaf_fn, q, qd, goal, center)
 
     q0 = jnp.array([0.2, -0.4, 0.3])
@@ -342,7 +340,10 @@ def test_gds_closed_loop_lyapunov_and_invariant_set(solver):
     V = np.asarray(jax.vmap(lambda q, qd: _arm_energy(q, qd, goal, center))(qs, qds))
     assert np.all(np.isfinite(V))
     dV = np.diff(V)
-    tol = 1e-9 if solver == "exact" else 1e-6 * V[0]
+    # exact solve: V̇ = −Σ ẋᵀBẋ ≤ 0 holds up to RK4 error. rmp2.resolve's regularisation
+    # (M/s + 1e-3·I, s = max(1, 0.01·max|M|) up to 1e3 near the obstacle) adds −1e-3·s·q̇ᵀq̈ to V̇,
+    # which is not sign-definite: the increase stays below 1e-3·V(0) here.
+    tol = 1e-9 if solver == "exact" else 1e-3 * V[0]
     assert dV.max() <= tol, f"V increased by {dV.max():.3g}"
     assert V[-1] < 0.05 * V[0]
     # invariant set C∞^Φ of eq 3.28: q̇ → 0 and ∇_qΦ → 0
@@ -351,5 +352,6 @@ def test_gds_closed_loop_lyapunov_and_invariant_set(solver):
     assert float(jnp.linalg.norm(jax.grad(Phi_q)(qs[-1]))) < 1e-3
     # and the arm reached the goal while staying clear of the obstacle
     assert float(jnp.linalg.norm(end_effector(qs[-1]) - goal)) < 1e-3
-    clearance = jax.vmap(lambda q: obstacle_distance(control_points(q), center, OBSTACLE_RADIUS))(qs)
+    clearance = jax.vmap(
+        lambda q: obstacle_distance(control_points(q), center, OBSTACLE_RADIUS))(qs)
     assert float(clearance.min()) > 0.0

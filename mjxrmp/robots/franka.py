@@ -111,32 +111,67 @@ def dh_translation(a: float, d: float, alpha: float) -> tuple[float, float, floa
     return (a, _clean(-math.sin(alpha) * d), _clean(math.cos(alpha) * d))
 
 
-def _times_vector(r: jax.Array, v: tuple[float, float, float]) -> jax.Array:
-    """``r @ v`` for a constant vector, expanded into a sum of scaled columns."""
-    terms = [v[k] * r[:, k] for k in range(3) if v[k] != 0.0]
+Columns = tuple[jax.Array, jax.Array, jax.Array]
+
+
+def _times_vector(cols: Columns, v: tuple[float, float, float]) -> jax.Array:
+    """``R @ v`` for a constant vector, as a sum of scaled columns."""
+    terms = [v[k] * cols[k] for k in range(3) if v[k] != 0.0]
     if not terms:
-        return jnp.zeros(3, dtype=r.dtype)
+        return jnp.zeros_like(cols[0])
     out = terms[0]
     for t in terms[1:]:
         out = out + t
     return out
 
 
-def _rotate(r: jax.Array, axis: int, c: jax.Array | float, s: jax.Array | float) -> jax.Array:
-    """``r @ Rot_axis(θ)`` given ``c = cos θ``, ``s = sin θ`` (axis 0 = x, 2 = z)."""
+def _rotate(cols: Columns, axis: int, c: jax.Array | float, s: jax.Array | float) -> Columns:
+    """Columns of ``R @ Rot_axis(θ)`` given ``c = cos θ``, ``s = sin θ`` (axis 0 = x, 2 = z).
+
+    Rotations are kept as three column vectors so that the chain is pure elementwise
+    arithmetic (no slicing or stacking), which XLA fuses into few kernels.
+    """
     i, j = (1, 2) if axis == 0 else (0, 1)
     if isinstance(c, float) and isinstance(s, float):
         if s == 0.0 and c == 1.0:
-            return r
+            return cols
         if c == 0.0:  # ±π/2: a signed column permutation
-            ci, cj = s * r[:, j], -s * r[:, i]
+            ci, cj = s * cols[j], -s * cols[i]
         else:
-            ci, cj = c * r[:, i] + s * r[:, j], c * r[:, j] - s * r[:, i]
+            ci, cj = c * cols[i] + s * cols[j], c * cols[j] - s * cols[i]
     else:
-        ci, cj = c * r[:, i] + s * r[:, j], c * r[:, j] - s * r[:, i]
-    cols = [r[:, 0], r[:, 1], r[:, 2]]
-    cols[i], cols[j] = ci, cj
-    return jnp.stack(cols, axis=1)
+        ci, cj = c * cols[i] + s * cols[j], c * cols[j] - s * cols[i]
+    out = list(cols)
+    out[i], out[j] = ci, cj
+    return (out[0], out[1], out[2])
+
+
+def _frame_columns(q: jax.Array) -> dict[str, tuple[Columns, jax.Array]]:
+    """Every named frame as ``(rotation columns, position)`` in one forward pass."""
+    eye = jnp.eye(3, dtype=q.dtype)
+    cols: Columns = (eye[0], eye[1], eye[2])
+    p = jnp.zeros(3, dtype=q.dtype)
+    frames = {"link0": (cols, p)}
+    cos_q, sin_q = jnp.cos(q), jnp.sin(q)
+    for i, (a, d, alpha) in enumerate(DH_PARAMS):
+        p = p + _times_vector(cols, dh_translation(a, d, alpha))
+        cols = _rotate(cols, 0, _clean(math.cos(alpha)), _clean(math.sin(alpha)))
+        cols = _rotate(cols, 2, cos_q[i], sin_q[i])
+        frames[f"link{i + 1}"] = (cols, p)
+    p = p + _times_vector(cols, dh_translation(*FLANGE_DH))
+    frames["link8"] = (cols, p)
+    frames["hand"] = (_rotate(cols, 2, math.cos(HAND_YAW), math.sin(HAND_YAW)), p)
+    for name, (parent, offset) in OFFSET_FRAMES.items():
+        parent_cols, parent_p = frames[parent]
+        frames[name] = (parent_cols, parent_p + _times_vector(parent_cols, offset))
+    return frames
+
+
+def _as_float(q: jax.Array) -> jax.Array:
+    q = jnp.asarray(q)
+    if not jnp.issubdtype(q.dtype, jnp.floating):
+        q = q.astype(jnp.result_type(float))
+    return q
 
 
 def link_frames(q: jax.Array) -> dict[str, Frame]:
@@ -146,25 +181,10 @@ def link_frames(q: jax.Array) -> dict[str, Frame]:
     :data:`OFFSET_FRAMES` (forearm/wrist points, hand faces, fingers, fingertips,
     ``grasp_target``). ``R`` maps frame coordinates to base coordinates.
     """
-    q = jnp.asarray(q)
-    if not jnp.issubdtype(q.dtype, jnp.floating):
-        q = q.astype(jnp.result_type(float))
-    r = jnp.eye(3, dtype=q.dtype)
-    p = jnp.zeros(3, dtype=q.dtype)
-    frames: dict[str, Frame] = {"link0": (r, p)}
-    cos_q, sin_q = jnp.cos(q), jnp.sin(q)
-    for i, (a, d, alpha) in enumerate(DH_PARAMS):
-        p = p + _times_vector(r, dh_translation(a, d, alpha))
-        r = _rotate(r, 0, _clean(math.cos(alpha)), _clean(math.sin(alpha)))
-        r = _rotate(r, 2, cos_q[i], sin_q[i])
-        frames[f"link{i + 1}"] = (r, p)
-    p = p + _times_vector(r, dh_translation(*FLANGE_DH))
-    frames["link8"] = (r, p)
-    frames["hand"] = (_rotate(r, 2, math.cos(HAND_YAW), math.sin(HAND_YAW)), p)
-    for name, (parent, offset) in OFFSET_FRAMES.items():
-        r_parent, p_parent = frames[parent]
-        frames[name] = (r_parent, p_parent + _times_vector(r_parent, offset))
-    return frames
+    return {
+        name: (jnp.stack(cols, axis=1), p)
+        for name, (cols, p) in _frame_columns(_as_float(q)).items()
+    }
 
 
 def _segment_weights() -> tuple[tuple[str, ...], np.ndarray]:
@@ -188,14 +208,14 @@ def control_points(q: jax.Array) -> jax.Array:
 
     Ordered by :data:`CONTROL_POINT_SEGMENTS`; radii in :data:`CONTROL_POINT_RADII`.
     """
-    frames = link_frames(q)
+    frames = _frame_columns(_as_float(q))
     ends = jnp.stack([frames[n][1] for n in _CP_FRAMES])
     return jnp.asarray(_CP_WEIGHTS, dtype=ends.dtype) @ ends
 
 
 def end_effector(q: jax.Array) -> jax.Array:
     """Grasp-target position (0.105 m along the hand z-axis), shape ``(3,)``."""
-    return link_frames(q)["grasp_target"][1]
+    return _frame_columns(_as_float(q))["grasp_target"][1]
 
 
 FRANKA = Robot(

@@ -1,0 +1,419 @@
+"""Benchmark table (DESIGN §7): RMP² policy evaluations per second, latency and compile times.
+
+For each robot's hand-designed RMP² policy (``mjxrmp.policies.default_config``):
+
+* **batched** — ``jax.jit(jax.vmap(policy))`` at each batch size: evaluations/s = batch / (median
+  time of one call over ``--repeats`` timed repeats, after warm-up; each repeat runs the call
+  enough times to last ``--min-repeat-s`` and blocks once at the end);
+* **single** — single-state latency of ``jax.jit(policy)`` on unbatched inputs: the median over
+  ``--latency-calls`` calls, each blocked on its own (dispatch included);
+* the same for the naive baseline (:func:`mjxrmp.naive.acceleration_naive`) at ``--naive-batches``
+  and the ratio RMP²/naive at the largest batch both were run at (4096 by default).
+
+"compile" is the wall time of the first call of each compiled function (trace + compile + run).
+Inputs are random for every state: ``q`` uniform within the joint limits (±π where a joint has
+none), ``q̇ ~ U(−1, 1)``, a random goal and three random obstacles (3-link: 15 control points ×
+3 circles/cylinders + velocity caps + damping + target; Franka: 48 control points × 3 balls +
+joint limits + velocity caps + damping + cspace target + target). The default float32 path is
+measured (no x64, default matmul precision). Two input sets alternate between calls.
+
+Usage::
+
+    python scripts/bench.py                       # CPU: batches up to 4096; GPU: up to 262144
+    python scripts/bench.py --robots franka --batches 1 4096 65536 --repeats 7
+    python -m scripts.bench --quick --json /tmp/bench.json   # smoke test
+
+Writes JSON (``--json``, default ``results/bench_<device>.json``) after every row, so a run cut
+short still leaves its numbers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import functools
+import json
+import math
+import os
+import platform
+import re
+import statistics
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+import mjxrmp  # noqa: F401  (sets the XLA:CPU flag before JAX initialises)
+
+# isort: split
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjxrmp import naive, policies
+from mjxrmp.geometry import make_obstacles
+from mjxrmp.robots import get
+
+ROBOTS = ("three_link", "franka")
+GPU_BATCHES = (1, 64, 1024, 4096, 16384, 65536, 262144)
+CPU_BATCHES = (1, 64, 1024, 4096)
+NAIVE_BATCHES = (1, 4096)
+NUM_OBSTACLES = 3
+QD_RANGE = 1.0
+ROOT = Path(__file__).resolve().parent.parent
+
+
+# --------------------------------------------------------------------------------------------
+# Inputs
+# --------------------------------------------------------------------------------------------
+
+
+def make_sampler(robot_name: str) -> Callable[[jax.Array, int], tuple]:
+    """``sample(key, n) -> (q, qd, goal, obstacles)`` with a leading batch axis ``n``."""
+    robot = get(robot_name)
+    lo = np.where(np.isfinite(robot.q_lower), robot.q_lower, -np.pi).astype(np.float32)
+    hi = np.where(np.isfinite(robot.q_upper), robot.q_upper, np.pi).astype(np.float32)
+    dim = robot.workspace_dim
+
+    def planar_points(key, n, r_min, r_max):
+        kr, ka = jax.random.split(key)
+        r = jax.random.uniform(kr, (n,), minval=r_min, maxval=r_max)
+        a = jax.random.uniform(ka, (n,), minval=-jnp.pi, maxval=jnp.pi)
+        return jnp.stack([r * jnp.cos(a), r * jnp.sin(a)], axis=-1)
+
+    def sample_one(key):
+        kq, kqd, kg, kc, kr = jax.random.split(key, 5)
+        q = jax.random.uniform(kq, (robot.dof,), minval=lo, maxval=hi)
+        qd = jax.random.uniform(kqd, (robot.dof,), minval=-QD_RANGE, maxval=QD_RANGE)
+        if dim == 2:  # planar 3-link: reach 0.75 m
+            goal = planar_points(kg, 1, 0.2, 0.7)[0]
+            centers = planar_points(kc, NUM_OBSTACLES, 0.2, 0.8)
+        else:  # Franka: a box in front of the robot
+            goal = jax.random.uniform(kg, (3,), minval=jnp.array([0.3, -0.4, 0.2]),
+                                      maxval=jnp.array([0.7, 0.4, 0.7]))
+            centers = jax.random.uniform(kc, (NUM_OBSTACLES, 3), minval=jnp.array([0.2, -0.5, 0.0]),
+                                         maxval=jnp.array([0.8, 0.5, 0.8]))
+        radii = jax.random.uniform(kr, (NUM_OBSTACLES,), minval=0.05, maxval=0.15)
+        return q, qd, goal, make_obstacles(centers, radii)
+
+    @functools.partial(jax.jit, static_argnums=1)
+    def sample(key, n):
+        return jax.vmap(sample_one)(jax.random.split(key, n))
+
+    return sample
+
+
+def policy_function(robot_name: str, impl: str) -> Callable:
+    """One-state policy ``(q, qd, goal, obstacles) -> qdd`` of the hand-designed preset."""
+    cfg = policies.default_config(robot_name)
+    if impl == "rmp2":
+        return lambda q, qd, goal, obs: policies.acceleration(cfg, q, qd, goal, obs)
+    if impl == "naive":
+        return lambda q, qd, goal, obs: naive.acceleration_naive(
+            policies.task_map, policies.leaf_rmps, q, qd, goal, obs, cfg
+        )
+    raise ValueError(f"impl must be 'rmp2' or 'naive', got {impl!r}")
+
+
+# --------------------------------------------------------------------------------------------
+# Timing
+# --------------------------------------------------------------------------------------------
+
+
+def _block(x):
+    return jax.block_until_ready(x)
+
+
+def _finite_fraction(out) -> float:
+    return float(jnp.mean(jnp.all(jnp.isfinite(out), axis=-1).astype(jnp.float32)))
+
+
+def measure_batched(fn, input_sets: Sequence[tuple], repeats: int, min_repeat_s: float) -> dict:
+    """Compile (first call), warm up, then the median per-call time over ``repeats`` repeats."""
+    t0 = time.perf_counter()
+    out = _block(fn(*input_sets[0]))
+    compile_s = time.perf_counter() - t0
+    finite = _finite_fraction(out)
+    _block(fn(*input_sets[1 % len(input_sets)]))  # warm-up
+    t0 = time.perf_counter()
+    _block(fn(*input_sets[0]))
+    one = time.perf_counter() - t0
+    calls = max(1, min(100_000, math.ceil(min_repeat_s / max(one, 1e-9))))
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for j in range(calls):
+            out = fn(*input_sets[j % len(input_sets)])
+        _block(out)
+        times.append((time.perf_counter() - t0) / calls)
+    return {
+        "time_per_call_s": statistics.median(times),
+        "time_min_s": min(times),
+        "time_max_s": max(times),
+        "compile_s": compile_s,
+        "repeats": repeats,
+        "calls_per_repeat": calls,
+        "finite_fraction": finite,
+    }
+
+
+def measure_latency(fn, input_sets: Sequence[tuple], calls: int, budget_s: float) -> dict:
+    """Median single-call latency (each call blocked on its own) after compile and warm-up.
+
+    At most ``calls`` calls; fewer (but at least 20) where ``calls`` would outlast ``budget_s``.
+    """
+    t0 = time.perf_counter()
+    out = _block(fn(*input_sets[0]))
+    compile_s = time.perf_counter() - t0
+    finite = float(jnp.all(jnp.isfinite(out)))
+    t0 = time.perf_counter()
+    for j in range(10):
+        _block(fn(*input_sets[j % len(input_sets)]))
+    one = (time.perf_counter() - t0) / 10
+    n = int(max(20, min(calls, budget_s / max(one, 1e-9))))
+    times = []
+    for j in range(n):
+        args = input_sets[j % len(input_sets)]
+        t0 = time.perf_counter()
+        _block(fn(*args))
+        times.append(time.perf_counter() - t0)
+    return {
+        "time_per_call_s": statistics.median(times),
+        "time_min_s": min(times),
+        "time_max_s": max(times),
+        "compile_s": compile_s,
+        "repeats": 1,
+        "calls_per_repeat": n,
+        "finite_fraction": finite,
+    }
+
+
+# --------------------------------------------------------------------------------------------
+# Formatting
+# --------------------------------------------------------------------------------------------
+
+
+def fmt_rate(x: float | None) -> str:
+    """``2.31e7/s`` style."""
+    if x is None or not math.isfinite(x) or x <= 0:
+        return "-"
+    mantissa, exponent = f"{x:.2e}".split("e")
+    return f"{mantissa}e{int(exponent)}/s"
+
+
+def fmt_time(s: float | None) -> str:
+    if s is None or not math.isfinite(s):
+        return "-"
+    if s < 1e-3:
+        return f"{s * 1e6:.1f} µs"
+    if s < 1.0:
+        return f"{s * 1e3:.2f} ms"
+    return f"{s:.2f} s"
+
+
+def format_table(rows: list[dict]) -> str:
+    headers = ("robot", "impl", "mode", "batch", "evals/s", "time/call", "compile", "calls×reps")
+    lines = []
+    for r in rows:
+        if r.get("error"):
+            cells = (r["robot"], r["impl"], r["mode"], str(r["batch"]), "ERROR", "-", "-",
+                     r["error"][:40])
+        else:
+            cells = (
+                r["robot"], r["impl"], r["mode"], str(r["batch"]), fmt_rate(r["evals_per_s"]),
+                fmt_time(r["time_per_call_s"]), fmt_time(r["compile_s"]),
+                f"{r['calls_per_repeat']}×{r['repeats']}",
+            )
+        lines.append(cells)
+    widths = [max(len(h), *(len(c[i]) for c in lines)) for i, h in enumerate(headers)]
+    right = {3, 4, 5, 6, 7}
+
+    def line(cells):
+        return "  ".join(c.rjust(w) if i in right else c.ljust(w)
+                         for i, (c, w) in enumerate(zip(cells, widths, strict=True)))
+
+    out = [line(headers), line(tuple("-" * w for w in widths))]
+    out += [line(c) for c in lines]
+    return "\n".join(out)
+
+
+def summarise(rows: list[dict]) -> dict:
+    """Per robot: latency, best batch, naive ratio at the largest batch both impls ran."""
+    summary = {}
+    for robot in dict.fromkeys(r["robot"] for r in rows):
+        ok = [r for r in rows if r["robot"] == robot and not r.get("error")]
+        rmp2 = {r["batch"]: r for r in ok if r["impl"] == "rmp2" and r["mode"] == "batched"}
+        nv = {r["batch"]: r for r in ok if r["impl"] == "naive" and r["mode"] == "batched"}
+        s: dict = {}
+        for impl in ("rmp2", "naive"):
+            lat = [r for r in ok if r["impl"] == impl and r["mode"] == "single"]
+            if lat:
+                s[f"{impl}_latency_us"] = lat[0]["time_per_call_s"] * 1e6
+        if rmp2:
+            best = max(rmp2.values(), key=lambda r: r["evals_per_s"])
+            s["rmp2_best_batch"] = best["batch"]
+            s["rmp2_best_evals_per_s"] = best["evals_per_s"]
+        common = sorted(set(rmp2) & set(nv))
+        if common:
+            b = common[-1]
+            s["ratio_batch"] = b
+            s["rmp2_over_naive"] = rmp2[b]["evals_per_s"] / nv[b]["evals_per_s"]
+        summary[robot] = s
+    return summary
+
+
+def format_summary(summary: dict) -> str:
+    lines = []
+    for robot, s in summary.items():
+        parts = []
+        if "rmp2_best_batch" in s:
+            parts.append(f"best RMP² batch {s['rmp2_best_batch']} "
+                         f"({fmt_rate(s['rmp2_best_evals_per_s'])})")
+        if "rmp2_latency_us" in s:
+            parts.append(f"single-state latency {s['rmp2_latency_us']:.1f} µs")
+        if "rmp2_over_naive" in s:
+            parts.append(f"RMP²/naive at batch {s['ratio_batch']} = {s['rmp2_over_naive']:.1f}×")
+        lines.append(f"{robot}: " + "; ".join(parts))
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------------------------
+# Driver
+# --------------------------------------------------------------------------------------------
+
+
+def device_info() -> dict:
+    import jaxlib
+
+    dev = jax.devices()[0]
+    return {
+        "platform": dev.platform,
+        "device_kind": dev.device_kind,
+        "device_count": jax.device_count(),
+        "jax": jax.__version__,
+        "jaxlib": jaxlib.__version__,
+        "dtype": str(jnp.zeros(()).dtype),
+        "matmul_precision": jax.config.jax_default_matmul_precision or "default",
+        "python": platform.python_version(),
+        "host_cpus": os.cpu_count(),
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),
+    }
+
+
+def device_slug(info: dict) -> str:
+    name = "cpu" if info["platform"] == "cpu" else info["device_kind"]
+    return re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--robots", nargs="+", choices=ROBOTS, default=list(ROBOTS))
+    p.add_argument("--batches", nargs="+", type=int, default=None,
+                   help=f"RMP² batch sizes (default GPU {GPU_BATCHES}, CPU {CPU_BATCHES})")
+    p.add_argument("--naive-batches", nargs="+", type=int, default=None,
+                   help=f"naive-baseline batch sizes (default {NAIVE_BATCHES}; none: 0)")
+    p.add_argument("--repeats", type=int, default=None, help="timed repeats (default 5)")
+    p.add_argument("--latency-calls", type=int, default=None,
+                   help="single-state calls for the latency median (default 1000)")
+    p.add_argument("--min-repeat-s", type=float, default=None,
+                   help="each timed repeat lasts at least this long (default 0.2 s)")
+    p.add_argument("--full", action="store_true", help="on CPU, use the GPU batch sizes too")
+    p.add_argument("--quick", action="store_true", help="tiny sizes, for a smoke test")
+    p.add_argument("--json", type=Path, default=None,
+                   help="output path (default results/bench_<device>.json)")
+    p.add_argument("--seed", type=int, default=0)
+    args = p.parse_args(argv)
+    on_cpu = jax.default_backend() == "cpu"
+    if args.batches is None:
+        args.batches = [1, 16] if args.quick else list(
+            CPU_BATCHES if on_cpu and not args.full else GPU_BATCHES)
+    if args.naive_batches is None:
+        args.naive_batches = [1, 16] if args.quick else list(NAIVE_BATCHES)
+    args.naive_batches = [b for b in args.naive_batches if b > 0]
+    if args.repeats is None:
+        args.repeats = 2 if args.quick else 5
+    if args.latency_calls is None:
+        args.latency_calls = 50 if args.quick else 1000
+    if args.min_repeat_s is None:
+        args.min_repeat_s = 0.01 if args.quick else 0.2
+    for name in ("batches", "naive_batches"):
+        if any(b < 1 for b in getattr(args, name)):
+            p.error(f"--{name.replace('_', '-')} must be positive integers")
+    if args.repeats < 1 or args.latency_calls < 1:
+        p.error("--repeats and --latency-calls must be >= 1")
+    return args
+
+
+def _write(path: Path, result: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(result, indent=2) + "\n")
+    tmp.replace(path)
+
+
+def main(argv: Sequence[str] | None = None) -> dict:
+    """Run the benchmark, print the table, write the JSON and return it."""
+    args = parse_args(argv)
+    info = device_info()
+    path = args.json or ROOT / "results" / f"bench_{device_slug(info)}.json"
+    print(f"device: {info['device_kind']} ({info['platform']}, {info['device_count']} device(s)); "
+          f"jax {info['jax']}; dtype {info['dtype']}; matmul precision "
+          f"{info['matmul_precision']}", flush=True)
+    result = {
+        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "command": " ".join(["python scripts/bench.py", *(argv if argv is not None
+                                                          else sys.argv[1:])]),
+        "device": info,
+        "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
+        "rows": [],
+        "summary": {},
+    }
+    key = jax.random.key(args.seed)
+    plan = []
+    for robot in args.robots:
+        plan.append((robot, "rmp2", "single", 1))
+        plan += [(robot, "rmp2", "batched", b) for b in args.batches]
+        if args.naive_batches:
+            plan.append((robot, "naive", "single", 1))
+            plan += [(robot, "naive", "batched", b) for b in args.naive_batches]
+
+    samplers = {robot: make_sampler(robot) for robot in args.robots}
+    compiled: dict = {}
+    for robot, impl, mode, batch in plan:
+        fn = policy_function(robot, impl)
+        if (robot, impl, mode) not in compiled:
+            compiled[(robot, impl, mode)] = jax.jit(jax.vmap(fn) if mode == "batched" else fn)
+        jfn = compiled[(robot, impl, mode)]
+        key, k0, k1 = jax.random.split(key, 3)
+        input_sets = [samplers[robot](k, batch) for k in (k0, k1)]
+        if mode == "single":
+            input_sets = [jax.tree.map(lambda a: a[0], s) for s in input_sets]
+        row = {"robot": robot, "impl": impl, "mode": mode, "batch": batch}
+        try:
+            if mode == "single":
+                row.update(measure_latency(jfn, input_sets, args.latency_calls,
+                                           budget_s=2.0 if args.quick else 10.0))
+            else:
+                row.update(measure_batched(jfn, input_sets, args.repeats, args.min_repeat_s))
+            row["evals_per_s"] = batch / row["time_per_call_s"]
+        except Exception as err:  # e.g. out of device memory at the largest batches
+            row["error"] = f"{type(err).__name__}: {err}"[:500]
+            row["evals_per_s"] = None
+        del input_sets
+        result["rows"].append(row)
+        result["summary"] = summarise(result["rows"])
+        _write(path, result)
+        status = row.get("error") or (f"{fmt_rate(row['evals_per_s'])}, "
+                                      f"compile {fmt_time(row['compile_s'])}")
+        print(f"  … {robot} {impl} {mode} batch {batch}: {status}", file=sys.stderr, flush=True)
+
+    print(format_table(result["rows"]))
+    print(format_summary(result["summary"]))
+    print(f"JSON: {path}", flush=True)
+    return result
+
+
+if __name__ == "__main__":
+    main()
