@@ -8,7 +8,7 @@ from mjxrmp._xla import configure_cpu_flags
 
 configure_cpu_flags()
 
-from mjxrmp import rmp2  # noqa: E402
+from mjxrmp import clf, gds, geometry, leaves, policies, rmp2, robots  # noqa: E402
 from mjxrmp.rmp import RMP, natural  # noqa: E402
 
-__all__ = ["RMP", "natural", "rmp2"]
+__all__ = ["RMP", "clf", "gds", "geometry", "leaves", "natural", "policies", "rmp2", "robots"]

@@ -157,6 +157,9 @@ def _frame_columns(q: jax.Array) -> dict[str, tuple[Columns, jax.Array]]:
         p = p + _times_vector(cols, dh_translation(a, d, alpha))
         cols = _rotate(cols, 0, _clean(math.cos(alpha)), _clean(math.sin(alpha)))
         cols = _rotate(cols, 2, cos_q[i], sin_q[i])
+        # Materialise each link frame: otherwise XLA fuses the whole chain into every consumer
+        # and recomputes it per output element (3× growth per joint; 3× slower on CPU).
+        cols, p = jax.lax.optimization_barrier((cols, p))
         frames[f"link{i + 1}"] = (cols, p)
     p = p + _times_vector(cols, dh_translation(*FLANGE_DH))
     frames["link8"] = (cols, p)
