@@ -9,6 +9,6 @@ import os
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
-from mjxrmp._xla import configure_cpu_flags  # noqa: E402  (after JAX_PLATFORMS is set)
+from mjxrmp._xla import configure_cpu_flags
 
 configure_cpu_flags()

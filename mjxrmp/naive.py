@@ -46,32 +46,10 @@ from mjxrmp import rmp2
 from mjxrmp.rmp import RMP
 
 
-def _as_configuration(name: str, value: Any, d: int | None = None) -> jax.Array:
-    arr = value if isinstance(value, jax.Array) else jnp.asarray(value)
-    if arr.ndim != 1:
-        raise ValueError(
-            f"{name} must be a 1-D configuration vector of shape (d,), got shape {arr.shape}; "
-            "batch with jax.vmap instead of passing a batch"
-        )
-    if not jnp.issubdtype(arr.dtype, jnp.floating):
-        raise TypeError(f"{name} must be a floating-point array, got dtype {arr.dtype}")
-    if d is not None and arr.shape[0] != d:
-        raise ValueError(f"{name} must have shape ({d},) to match q, got {arr.shape}")
-    return arr
-
-
 def _family_shapes(task_map, q, ctx):
     shapes = jax.eval_shape(lambda q_: task_map(q_, *ctx), q)
-    leaves, treedef = jax.tree.flatten(shapes)
-    if not leaves:
-        raise ValueError("task_map returned an empty pytree; it must return at least one leaf")
-    for leaf in leaves:
-        if len(leaf.shape) != 2:
-            raise ValueError(
-                "task_map leaves must have shape (n_k, m_k) (a family of n_k subtasks of "
-                f"dimension m_k), got shape {leaf.shape}"
-            )
-    return leaves, treedef
+    rmp2.check_task_tree(shapes)
+    return jax.tree.flatten(shapes)
 
 
 def _subtask_kinematics(task_map, k: int, i, q, qd, ctx):
@@ -130,8 +108,8 @@ def acceleration_naive(
     ``qd`` are single configurations ``(d,)``, ``ctx`` goes to ``task_map`` and ``leaf_fn``.
     ``unroll=True`` unrolls the per-subtask loop in Python (slow to compile).
     """
-    q = _as_configuration("q", q)
-    qd = _as_configuration("qd", qd, q.shape[0])
+    q = rmp2.check_configuration("q", q)
+    qd = rmp2.check_configuration("qd", qd, q.shape[0])
     leaves, treedef = _family_shapes(task_map, q, ctx)
 
     # Forward pass: every subtask on its own.
@@ -143,21 +121,13 @@ def acceleration_naive(
     # Leaf RMPs on the assembled tree.
     x_tree = jax.tree.unflatten(treedef, [fam[0] for fam in fams])
     xd_tree = jax.tree.unflatten(treedef, [fam[1] for fam in fams])
-    try:
-        rmps = treedef.flatten_up_to(leaf_fn(x_tree, xd_tree, *ctx))
-    except (ValueError, TypeError) as err:
-        raise ValueError(
-            f"leaf_fn must return a pytree with the task map's structure ({treedef}) whose "
-            f"leaves are RMP(M, f): {err}"
-        ) from None
+    rmps = rmp2.flatten_leaf_rmps(x_tree, leaf_fn(x_tree, xd_tree, *ctx), "f")
 
     # Backward pass: accumulate Σ JᵀMJ and Σ Jᵀ(f − Mc) one subtask at a time.
     d = q.shape[0]
     M_root = jnp.zeros((d, d), q.dtype)
     f_root = jnp.zeros((d,), q.dtype)
     for (_, _, c_k, J_k), node in zip(fams, rmps, strict=True):
-        if not isinstance(node, RMP):
-            raise TypeError(f"leaf_fn must return RMP(M, f) leaves, got {type(node).__name__}")
         M_k, f_k = node
         if unroll:
             for i in range(J_k.shape[0]):

@@ -32,6 +32,8 @@ LeafFn = Callable[..., Any]
 RESOLVE_REGULARIZATION = 1e-3
 #: ``scale = max(1, RESOLVE_SCALE · max|M_ij|)``.
 RESOLVE_SCALE = 0.01
+#: Full float32 products on GPUs (no TF32): the root metric feeds a linear solve (DESIGN §8.4).
+_EXACT = jax.lax.Precision.HIGHEST
 
 
 # --------------------------------------------------------------------------------------------
@@ -39,7 +41,8 @@ RESOLVE_SCALE = 0.01
 # --------------------------------------------------------------------------------------------
 
 
-def _check_configuration(name: str, value: Any, d: int | None = None) -> jax.Array:
+def check_configuration(name: str, value: Any, d: int | None = None) -> jax.Array:
+    """``value`` as a 1-D floating configuration (of length ``d`` if given), else a clear error."""
     arr = jnp.asarray(value) if not isinstance(value, jax.Array) else value
     if arr.ndim != 1:
         raise ValueError(
@@ -53,7 +56,8 @@ def _check_configuration(name: str, value: Any, d: int | None = None) -> jax.Arr
     return arr
 
 
-def _check_task_tree(x_tree: Any) -> None:
+def check_task_tree(x_tree: Any) -> None:
+    """Raise unless ``x_tree`` is a non-empty pytree of ``(n_k, m_k)`` arrays (or shapes)."""
     leaves, _ = jax.tree_util.tree_flatten_with_path(x_tree)
     if not leaves:
         raise ValueError("task_map returned an empty pytree; it must return at least one leaf")
@@ -70,7 +74,7 @@ def _check_task_tree(x_tree: Any) -> None:
             )
 
 
-def _flatten_leaf_rmps(x_tree: Any, rmps: Any, second: str) -> list[RMP]:
+def flatten_leaf_rmps(x_tree: Any, rmps: Any, second: str) -> list[RMP]:
     """Flatten ``leaf_fn``'s output up to the task map's structure, checking every leaf."""
     x_struct = jax.tree.structure(x_tree)
     paths = [jax.tree_util.keystr(p) or "<root>" for p, _ in
@@ -166,7 +170,7 @@ def _accumulate(J_leaves, rmps: list[RMP], c_leaves=None) -> RMP:
     groups: dict[int, list[tuple[jax.Array, jax.Array, jax.Array]]] = {}
     for i, (J, (M, f)) in enumerate(zip(J_leaves, rmps, strict=True)):
         if c_leaves is not None:
-            f = f - jnp.einsum("nab,nb->na", M, c_leaves[i])
+            f = f - jnp.einsum("nab,nb->na", M, c_leaves[i], precision=_EXACT)
         groups.setdefault(J.shape[1], []).append((J, M, f))
     M_root = 0.0
     f_root = 0.0
@@ -174,19 +178,19 @@ def _accumulate(J_leaves, rmps: list[RMP], c_leaves=None) -> RMP:
         J, M, f = (jnp.concatenate(parts, axis=0) for parts in zip(*members, strict=True))
         if m == 1:
             J1 = J[:, 0, :]
-            M_root = M_root + (J1 * M[:, 0, 0, None]).T @ J1
-            f_root = f_root + J1.T @ f[:, 0]
+            M_root = M_root + jnp.matmul((J1 * M[:, 0, 0, None]).T, J1, precision=_EXACT)
+            f_root = f_root + jnp.matmul(J1.T, f[:, 0], precision=_EXACT)
         else:
-            M_root = M_root + jnp.einsum("nai,nab,nbj->ij", J, M, J)
-            f_root = f_root + jnp.einsum("nai,na->i", J, f)
+            M_root = M_root + jnp.einsum("nai,nab,nbj->ij", J, M, J, precision=_EXACT)
+            f_root = f_root + jnp.einsum("nai,na->i", J, f, precision=_EXACT)
     return RMP(M_root, f_root)
 
 
 def _pullback(task_map, leaf_fn, q, qd, ctx, debug: bool) -> RMP:
     x, xd, c, J = task_kinematics(task_map, q, qd, *ctx)
-    _check_task_tree(x)
+    check_task_tree(x)
     _debug_check(debug, (x, xd, c, J), "task_map output (x, xd, curvature, J)")
-    rmps = _flatten_leaf_rmps(x, leaf_fn(x, xd, *ctx), "f")
+    rmps = flatten_leaf_rmps(x, leaf_fn(x, xd, *ctx), "f")
     _debug_check(debug, jax.tree.unflatten(jax.tree.structure(x), rmps), "leaf_fn output")
     root = _accumulate(jax.tree.leaves(J), rmps, jax.tree.leaves(c))
     _debug_check(debug, root, "root RMP")
@@ -195,9 +199,9 @@ def _pullback(task_map, leaf_fn, q, qd, ctx, debug: bool) -> RMP:
 
 def _pullback_velocity(task_map, leaf_fn, q, ctx, debug: bool) -> RMP:
     x, J = task_jacobian(task_map, q, *ctx)
-    _check_task_tree(x)
+    check_task_tree(x)
     _debug_check(debug, (x, J), "task_map output (x, J)")
-    rmps = _flatten_leaf_rmps(x, leaf_fn(x, *ctx), "p")
+    rmps = flatten_leaf_rmps(x, leaf_fn(x, *ctx), "p")
     _debug_check(debug, jax.tree.unflatten(jax.tree.structure(x), rmps), "leaf_fn output")
     root = _accumulate(jax.tree.leaves(J), rmps)
     _debug_check(debug, root, "root RMP")
@@ -208,7 +212,8 @@ def _resolve(root: RMP) -> jax.Array:
     M, f = _check_root(root)
     scale = jnp.maximum(1.0, RESOLVE_SCALE * jnp.max(jnp.abs(M)))
     M = M / scale + RESOLVE_REGULARIZATION * jnp.eye(M.shape[0], dtype=M.dtype)
-    return jnp.linalg.solve(M, f / scale)
+    with jax.default_matmul_precision("highest"):
+        return jnp.linalg.solve(M, f / scale)
 
 
 def _run_debug(fn: Callable[..., jax.Array], args: tuple) -> jax.Array:
@@ -248,8 +253,8 @@ def pullback(task_map: TaskMap, leaf_fn: LeafFn, q: jax.Array, qd: jax.Array, *c
     ``q`` and ``qd`` are single configurations of shape ``(d,)`` (batch with ``jax.vmap``);
     ``ctx`` (goal, obstacles, parameters) is passed to both ``task_map`` and ``leaf_fn``.
     """
-    q = _check_configuration("q", q)
-    qd = _check_configuration("qd", qd, q.shape[0])
+    q = check_configuration("q", q)
+    qd = check_configuration("qd", qd, q.shape[0])
     return _pullback(task_map, leaf_fn, q, qd, ctx, False)
 
 
@@ -271,8 +276,8 @@ def acceleration(
     With ``debug=True`` (concrete inputs only) the computation runs under ``checkify`` and raises
     on the first non-finite value, naming where it arose.
     """
-    q = _check_configuration("q", q)
-    qd = _check_configuration("qd", qd, q.shape[0])
+    q = check_configuration("q", q)
+    qd = check_configuration("qd", qd, q.shape[0])
     run = lambda q, qd, ctx: _resolve(_pullback(task_map, leaf_fn, q, qd, ctx, debug))  # noqa: E731
     return _run_debug(run, (q, qd, ctx)) if debug else run(q, qd, ctx)
 
@@ -282,7 +287,7 @@ def pullback_velocity(task_map: TaskMap, leaf_fn: LeafFn, q: jax.Array, *ctx: An
 
     ``leaf_fn(x_tree, *ctx)`` returns ``RMP(M (n,m,m), p (n,m))`` at every leaf.
     """
-    q = _check_configuration("q", q)
+    q = check_configuration("q", q)
     return _pullback_velocity(task_map, leaf_fn, q, ctx, False)
 
 
@@ -294,6 +299,6 @@ def velocity(
     Leaves return the natural pair ``RMP(M_k, p_k = M_k v_k)``; the root is resolved with the
     same numerics as :func:`resolve`.
     """
-    q = _check_configuration("q", q)
+    q = check_configuration("q", q)
     run = lambda q, ctx: _resolve(_pullback_velocity(task_map, leaf_fn, q, ctx, debug))  # noqa: E731
     return _run_debug(run, (q, ctx)) if debug else run(q, ctx)

@@ -299,6 +299,7 @@ def device_info() -> dict:
         "python": platform.python_version(),
         "host_cpus": os.cpu_count(),
         "xla_flags": os.environ.get("XLA_FLAGS", ""),
+        "cpu_async_dispatch": bool(jax.config.values["jax_cpu_enable_async_dispatch"]),
     }
 
 
@@ -324,6 +325,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--json", type=Path, default=None,
                    help="output path (default results/bench_<device>.json)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--async-dispatch", action="store_true",
+                   help="on CPU, keep JAX's asynchronous dispatch (default: synchronous, the "
+                        "low-latency setting for single-state control loops)")
     args = p.parse_args(argv)
     on_cpu = jax.default_backend() == "cpu"
     if args.batches is None:
@@ -356,6 +360,10 @@ def _write(path: Path, result: dict) -> None:
 def main(argv: Sequence[str] | None = None) -> dict:
     """Run the benchmark, print the table, write the JSON and return it."""
     args = parse_args(argv)
+    if jax.default_backend() == "cpu" and not args.async_dispatch:
+        # Execute small CPU programs on the calling thread: no hand-off to a worker thread per
+        # call, which otherwise dominates (and scatters) single-state latency on few cores.
+        jax.config.update("jax_cpu_enable_async_dispatch", False)
     info = device_info()
     path = args.json or ROOT / "results" / f"bench_{device_slug(info)}.json"
     print(f"device: {info['device_kind']} ({info['platform']}, {info['device_count']} device(s)); "

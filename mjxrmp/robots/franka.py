@@ -213,7 +213,8 @@ def control_points(q: jax.Array) -> jax.Array:
     """
     frames = _frame_columns(_as_float(q))
     ends = jnp.stack([frames[n][1] for n in _CP_FRAMES])
-    return jnp.asarray(_CP_WEIGHTS, dtype=ends.dtype) @ ends
+    weights = jnp.asarray(_CP_WEIGHTS, dtype=ends.dtype)
+    return jnp.matmul(weights, ends, precision=jax.lax.Precision.HIGHEST)  # no TF32 on GPUs
 
 
 def end_effector(q: jax.Array) -> jax.Array:
