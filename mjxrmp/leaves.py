@@ -76,7 +76,7 @@ def target_rmp(x: jax.Array, xd: jax.Array, goal: jax.Array, p: TargetParams) ->
     e_b = jnp.exp(-0.5 * (dist / p.boost_length_scale) ** 2)
     boost = (p.boost * e_b + (1.0 - e_b))[:, :, None]
     M = boost * M0
-    return RMP(M, jnp.einsum("nij,nj->ni", M, a, precision=jax.lax.Precision.HIGHEST))
+    return RMP(M, jnp.sum(M * a[:, None, :], axis=-1))
 
 
 # --------------------------------------------------------------------------------------------

@@ -22,7 +22,7 @@ class RMP(NamedTuple):
 
 def natural(M: jax.Array, a: jax.Array) -> RMP:
     """Natural form ``[M, M a]`` of the canonical RMP ``(M, a)`` for a family (thesis §3.2.6)."""
-    return RMP(M, jnp.einsum("...ij,...j->...i", M, a, precision=jax.lax.Precision.HIGHEST))
+    return RMP(M, jnp.sum(M * a[..., None, :], axis=-1))
 
 
 def is_rmp(node: object) -> bool:

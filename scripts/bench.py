@@ -300,6 +300,7 @@ def device_info() -> dict:
         "host_cpus": os.cpu_count(),
         "xla_flags": os.environ.get("XLA_FLAGS", ""),
         "cpu_async_dispatch": bool(jax.config.values["jax_cpu_enable_async_dispatch"]),
+        "cpu_affinity": sorted(os.sched_getaffinity(0)),
     }
 
 
@@ -328,7 +329,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--async-dispatch", action="store_true",
                    help="on CPU, keep JAX's asynchronous dispatch (default: synchronous, the "
                         "low-latency setting for single-state control loops)")
+    p.add_argument("--pin-cpu", type=int, default=None, metavar="CORE",
+                   help="pin the process to one CPU core before JAX starts (Linux; the usual "
+                        "setting for measuring single-state control-loop latency)")
     args = p.parse_args(argv)
+    if args.pin_cpu is not None:
+        # Threads XLA creates later inherit this affinity: no hand-offs between cores.
+        os.sched_setaffinity(0, {args.pin_cpu})
     on_cpu = jax.default_backend() == "cpu"
     if args.batches is None:
         args.batches = [1, 16] if args.quick else list(
@@ -348,6 +355,24 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     if args.repeats < 1 or args.latency_calls < 1:
         p.error("--repeats and --latency-calls must be >= 1")
     return args
+
+
+def precision_check(robot: str, key: jax.Array, n: int) -> dict:
+    """Relative error of the float32 policy against float64 on ``n`` random states (same device).
+
+    Shows that no reduced-precision (TF32) product slips into the RMP² contractions on GPUs.
+    """
+    sample = make_sampler(robot)
+    fn = jax.jit(jax.vmap(policy_function(robot, "rmp2")))
+    inputs = sample(key, n)
+    out32 = np.asarray(fn(*inputs), np.float64)
+    with jax.enable_x64(True):
+        inputs64 = jax.tree.map(lambda a: jnp.asarray(np.asarray(a), jnp.float64), inputs)
+        out64 = np.asarray(fn(*inputs64))
+    rel = np.linalg.norm(out32 - out64, axis=-1) / np.maximum(np.linalg.norm(out64, axis=-1),
+                                                              1e-6)
+    return {"robot": robot, "states": n, "median_rel_err": float(np.median(rel)),
+            "p99_rel_err": float(np.quantile(rel, 0.99)), "max_rel_err": float(rel.max())}
 
 
 def _write(path: Path, result: dict) -> None:
@@ -417,8 +442,15 @@ def main(argv: Sequence[str] | None = None) -> dict:
                                       f"compile {fmt_time(row['compile_s'])}")
         print(f"  … {robot} {impl} {mode} batch {batch}: {status}", file=sys.stderr, flush=True)
 
+    result["precision"] = [precision_check(robot, jax.random.fold_in(key, i),
+                                           64 if args.quick else 4096)
+                           for i, robot in enumerate(args.robots)]
+    _write(path, result)
     print(format_table(result["rows"]))
     print(format_summary(result["summary"]))
+    for p in result["precision"]:
+        print(f"{p['robot']}: float32 vs float64 on {p['states']} states: relative error median "
+              f"{p['median_rel_err']:.1e}, p99 {p['p99_rel_err']:.1e}, max {p['max_rel_err']:.1e}")
     print(f"JSON: {path}", flush=True)
     return result
 

@@ -13,7 +13,7 @@ frames, as in the original Franka configuration; on each segment the points sit 
 
 Everything is computed in one forward-kinematics pass with elementwise operations only (rotations
 by the constant DH/offset matrices are expanded into column combinations at trace time), and the
-control points are one constant ``(48, k) @ (k, 3)`` product, so the functions stay lean under
+control points are interpolated elementwise between them, so the functions stay lean under
 repeated ``jax.jvp``/``jax.vmap``.
 """
 
@@ -190,31 +190,33 @@ def link_frames(q: jax.Array) -> dict[str, Frame]:
     }
 
 
-def _segment_weights() -> tuple[tuple[str, ...], np.ndarray]:
-    """Frames used by the control points and the constant ``(48, k)`` interpolation matrix."""
+def _segment_interpolation() -> tuple[tuple[str, ...], np.ndarray, np.ndarray, np.ndarray]:
+    """Frames used by the control points, each point's start/end frame index and fraction."""
     names = tuple(dict.fromkeys(n for s, e, _, _ in CONTROL_POINT_SEGMENTS for n in (s, e)))
-    rows = []
+    starts, ends, fractions = [], [], []
     for start, end, n, _ in CONTROL_POINT_SEGMENTS:
-        t = np.arange(1, n + 1) / n
-        w = np.zeros((n, len(names)))
-        w[:, names.index(start)] += 1.0 - t
-        w[:, names.index(end)] += t
-        rows.append(w)
-    return names, np.concatenate(rows, axis=0)
+        starts += [names.index(start)] * n
+        ends += [names.index(end)] * n
+        fractions += list(np.arange(1, n + 1) / n)
+    return names, np.array(starts, np.int32), np.array(ends, np.int32), np.array(fractions)
 
 
-_CP_FRAMES, _CP_WEIGHTS = _segment_weights()
+_CP_FRAMES, _CP_START, _CP_END, _CP_FRACTION = _segment_interpolation()
 
 
 def control_points(q: jax.Array) -> jax.Array:
     """The 48 collision control points in the base frame, shape ``(48, 3)``.
 
-    Ordered by :data:`CONTROL_POINT_SEGMENTS`; radii in :data:`CONTROL_POINT_RADII`.
+    Ordered by :data:`CONTROL_POINT_SEGMENTS`; radii in :data:`CONTROL_POINT_RADII`. Each point
+    is ``start + t·(end − start)`` (elementwise, so it fuses with the kinematics; no matrix
+    product, hence no TF32 rounding on GPUs).
     """
     frames = _frame_columns(_as_float(q))
     ends = jnp.stack([frames[n][1] for n in _CP_FRAMES])
-    weights = jnp.asarray(_CP_WEIGHTS, dtype=ends.dtype)
-    return jnp.matmul(weights, ends, precision=jax.lax.Precision.HIGHEST)  # no TF32 on GPUs
+    t = jnp.asarray(_CP_FRACTION, ends.dtype)[:, None]
+    start = jnp.take(ends, jnp.asarray(_CP_START), axis=0)
+    end = jnp.take(ends, jnp.asarray(_CP_END), axis=0)
+    return start + t * (end - start)
 
 
 def end_effector(q: jax.Array) -> jax.Array:
