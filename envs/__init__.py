@@ -1,1 +1,76 @@
-"""MJX reaching environments with the brax Env API (built in the envs milestone)."""
+"""MJX reaching environments with the brax ``Env`` API (DESIGN §4).
+
+Names for :func:`make` and, in brackets, for ``brax.envs.get_environment`` (registered when this
+package is imported):
+
+* ``three_link/env1`` (``three_link_env1``), ``three_link/env2`` (``three_link_env2``),
+  ``three_link/env3`` (``three_link_env3``) — :class:`ThreeLinkReach`;
+* ``franka`` (``franka_reach``) — :class:`FrankaReach`;
+* ``point2d`` (``point_robot_2d``) — :class:`PointRobot2D`.
+
+Keyword arguments are passed to the constructor, e.g.
+``make("three_link/env3", obstacle_sampler="original", observation="residual_rmp")``. For
+training use :func:`envs.wrappers.wrap` (its auto-reset re-samples goal and obstacles).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+
+import brax.envs
+
+from envs.point_robot import PointRobot2D, PointState
+from envs.reaching import FrankaReach, ReachEnv, ThreeLinkReach
+from envs.wrappers import AutoResetWrapper, RMPInEnv, wrap
+
+ENVIRONMENTS: dict[str, Callable[..., brax.envs.Env]] = {
+    "three_link/env1": functools.partial(ThreeLinkReach, "env1"),
+    "three_link/env2": functools.partial(ThreeLinkReach, "env2"),
+    "three_link/env3": functools.partial(ThreeLinkReach, "env3"),
+    "franka": FrankaReach,
+    "point2d": PointRobot2D,
+}
+#: brax registry names (valid identifiers) → :data:`ENVIRONMENTS` names.
+BRAX_NAMES: dict[str, str] = {
+    "three_link_env1": "three_link/env1",
+    "three_link_env2": "three_link/env2",
+    "three_link_env3": "three_link/env3",
+    "franka_reach": "franka",
+    "point_robot_2d": "point2d",
+}
+
+
+def make(name: str, **kwargs) -> brax.envs.Env:
+    """Build the environment called ``name`` (see the module docstring)."""
+    if name in BRAX_NAMES:
+        name = BRAX_NAMES[name]
+    if name not in ENVIRONMENTS:
+        raise ValueError(
+            f"unknown environment name={name!r}; valid names are {sorted(ENVIRONMENTS)}"
+        )
+    return ENVIRONMENTS[name](**kwargs)
+
+
+def register_brax() -> None:
+    """Register every environment with ``brax.envs.register_environment`` (idempotent)."""
+    for brax_name, name in BRAX_NAMES.items():
+        brax.envs.register_environment(brax_name, functools.partial(make, name))
+
+
+register_brax()
+
+__all__ = [
+    "BRAX_NAMES",
+    "ENVIRONMENTS",
+    "AutoResetWrapper",
+    "FrankaReach",
+    "PointRobot2D",
+    "PointState",
+    "RMPInEnv",
+    "ReachEnv",
+    "ThreeLinkReach",
+    "make",
+    "register_brax",
+    "wrap",
+]

@@ -1,0 +1,144 @@
+"""Wrappers: an auto-reset that re-samples goal and obstacles, the training ``wrap`` and RMP²
+inside the environment (:class:`RMPInEnv`).
+
+brax's ``AutoResetWrapper`` restores a cached first ``pipeline_state``/``obs`` and keeps
+``state.info`` — a reaching episode would then restart with the *previous* goal and obstacles
+(DESIGN §8.3). :class:`AutoResetWrapper` here instead calls ``reset`` with the fresh key the
+environment stored in ``state.info["rng"]`` at its last reset, so every reset inside the compiled
+graph samples a new scene. Use :func:`wrap` (vmap → episode limit → this auto-reset) for
+training; brax's own ``brax.envs.wrappers.training.wrap`` also runs the environments unchanged,
+but re-uses the first scene of each batch slot.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+from brax.envs.base import Env, State, Wrapper
+from brax.envs.wrappers.training import EpisodeWrapper, VmapWrapper
+
+from mjxrmp import policies, rmp2
+from mjxrmp.leaves import target_rmp
+from mjxrmp.rmp import RMP
+
+#: ``state.info`` entries owned by brax's ``EpisodeWrapper``: kept across an automatic reset.
+EPISODE_KEYS = ("steps", "truncation", "episode_done", "episode_metrics")
+
+
+def _where_done(done: jax.Array, new, old):
+    def sel(x, y):
+        d = jnp.reshape(done, done.shape + (1,) * (x.ndim - done.ndim)) > 0
+        return jnp.where(d, x, y)
+
+    return jax.tree.map(sel, new, old)
+
+
+class AutoResetWrapper(Wrapper):
+    """Resets done episodes with a *new* scene (goal, obstacles, initial state).
+
+    Apply it outermost (after the vmap and episode wrappers). At each step every finished
+    episode gets ``env.reset(state.info["rng"])``: pipeline state, observation and the
+    environment's own ``info`` entries (goal, obstacles, virtual velocity, key, per-episode
+    accumulators) are replaced; brax's episode bookkeeping (:data:`EPISODE_KEYS`), ``reward``,
+    ``done`` and ``metrics`` of the terminal step are kept, as in brax.
+    """
+
+    def step(self, state: State, action: jax.Array) -> State:
+        if "steps" in state.info:
+            steps = jnp.where(state.done > 0, jnp.zeros_like(state.info["steps"]),
+                              state.info["steps"])
+            state.info.update(steps=steps)
+        state = state.replace(done=jnp.zeros_like(state.done))
+        state = self.env.step(state, action)
+        fresh = self.env.reset(state.info["rng"])
+        done = state.done
+        info = dict(state.info)
+        for k, v in fresh.info.items():
+            if k not in EPISODE_KEYS:
+                info[k] = _where_done(done, v, state.info[k])
+        return state.replace(
+            pipeline_state=_where_done(done, fresh.pipeline_state, state.pipeline_state),
+            obs=_where_done(done, fresh.obs, state.obs),
+            info=info,
+        )
+
+
+def wrap(env: Env, episode_length: int | None = None, action_repeat: int = 1) -> Wrapper:
+    """Training wrapper: ``VmapWrapper`` → ``EpisodeWrapper`` → :class:`AutoResetWrapper`.
+
+    ``episode_length`` defaults to the environment's ``horizon`` (600 control steps). ``reset``
+    takes a batch of keys ``(B, 2)``.
+    """
+    if episode_length is None:
+        episode_length = int(getattr(env.unwrapped, "horizon", 1000))
+    env = VmapWrapper(env)
+    env = EpisodeWrapper(env, episode_length, action_repeat)
+    return AutoResetWrapper(env)
+
+
+class RMPInEnv(Wrapper):
+    """RMP² inside the environment (thesis §6.1.1, §6.2.2): the action is a residual RMP.
+
+    For an end effector of dimension ``m`` the action has ``m·m + m`` entries: the raw
+    metric-root residual ``A_r`` (row-major) and the raw acceleration residual ``a_r``, squashed
+    as ``A_r = √5·tanh(·)`` and ``a_r = tanh(·)`` (ANCHOR_FACTS §4). With the hand-designed
+    target RMP ``(M_h, a_h)`` of the ``residual_rmp`` preset, the learned end-effector leaf is
+    ``M = (A_r + chol(M_h))(A_r + chol(M_h))ᵀ``, ``a = a_r + a_h``; it replaces the target leaf
+    and is combined with the other hand-designed leaves by RMP². The resulting joint
+    acceleration goes to the wrapped environment (which clips it and runs the PD scheme).
+
+    A zero action reproduces the ``residual_rmp`` base policy. Wrap a single (un-vmapped)
+    environment; build it with ``observation="residual_rmp"`` to give the network
+    ``[x, ẋ, g, {o_i}]`` (goal, end-effector position/velocity are appended to the observation).
+    """
+
+    def __init__(self, env: Env, variant: str = "residual_rmp"):
+        super().__init__(env)
+        if variant != "residual_rmp":
+            raise ValueError(f"RMPInEnv supports variant='residual_rmp' only, got {variant!r}")
+        base = env.unwrapped
+        self.robot = base.robot
+        self.m = self.robot.workspace_dim
+        self.policy_config = policies.default_config(base.robot_name, variant)
+
+    @property
+    def action_size(self) -> int:
+        return self.m * self.m + self.m
+
+    def squash(self, action: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """``(A_r (m, m), a_r (m,))`` from a raw action."""
+        m = self.m
+        A_r = math.sqrt(5.0) * jnp.tanh(action[: m * m]).reshape(m, m)
+        a_r = jnp.tanh(action[m * m :])
+        return A_r, a_r
+
+    def joint_acceleration(self, state: State, action: jax.Array) -> jax.Array:
+        """Joint acceleration of the combined RMP² policy for a raw residual action."""
+        cfg = self.policy_config
+        A_r, a_r = self.squash(jnp.where(jnp.isfinite(action), action, 0.0))
+        q, qd, goal, obstacles = self.env.unwrapped.policy_inputs(state)
+
+        def task_map(q_, goal_, obstacles_, cfg_, A_r_, a_r_):
+            del A_r_, a_r_
+            return policies.task_map(q_, goal_, obstacles_, cfg_)
+
+        def leaf_fn(x, xd, goal_, obstacles_, cfg_, A_r_, a_r_):
+            out = policies.leaf_rmps(x, xd, goal_, obstacles_, cfg_)
+            M_h, f_h = target_rmp(x["target"], xd["target"], goal_, cfg_.target)
+            a_h = jnp.linalg.solve(M_h[0], f_h[0])
+            L = jnp.linalg.cholesky(M_h[0])
+            B = A_r_ + L
+            M = B @ B.T
+            a = a_r_ + a_h
+            out["target"] = RMP(M[None], (M @ a)[None])
+            return out
+
+        return rmp2.acceleration(task_map, leaf_fn, q, qd, goal, obstacles, cfg, A_r, a_r)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        return self.env.step(state, self.joint_acceleration(state, action))
+
+
+__all__ = ["EPISODE_KEYS", "AutoResetWrapper", "RMPInEnv", "wrap"]
