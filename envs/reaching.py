@@ -176,7 +176,19 @@ class ReachEnv(Env):
 
     # ------------------------------------------------------------------ scene sampling
     def sample_scene(self, key: jax.Array):
-        """``(q0, qd0, goal, obstacles, ok)`` for one episode; implemented by subclasses."""
+        """``(q0, qd0, goal, obstacles, ok)`` for one episode.
+
+        The initial state is drawn once; goal and obstacles are drawn as ``candidates``
+        candidate pairs against it (the thesis re-samples goal and obstacles when a clearance
+        rule fails), so the robot's kinematics is evaluated once per reset, not per candidate.
+        """
+        k_q, k_scene = jax.random.split(key)
+        q0, qd0 = self._sample_q0(k_q)
+        (goal, obstacles), ok = self._reject(k_scene, lambda k: self._candidate(k, q0))
+        return q0, qd0, goal, obstacles, ok
+
+    def _candidate(self, key: jax.Array, q0: jax.Array):
+        """``((goal, obstacles), margin)``: one candidate and its clearance margin (≥ 0: valid)."""
         raise NotImplementedError
 
     def _sample_q0(self, key: jax.Array, spread: float = 0.1, qd_spread: float = 0.005):
@@ -436,9 +448,8 @@ class ThreeLinkReach(ReachEnv):
             xml=mjcf.three_link_mjcf(kp=kp, kv=kv), num_obstacles=num_obstacles, **kwargs
         )
 
-    def _candidate(self, key: jax.Array):
-        k_q, k_g, k_c, k_r = jax.random.split(key, 4)
-        q0, qd0 = self._sample_q0(k_q)
+    def _candidate(self, key: jax.Array, q0: jax.Array):
+        k_g, k_c, k_r = jax.random.split(key, 3)
         r_min, r_max, a_c, a_r = self.goal_region
         goal = samplers.annulus_area_uniform(k_g, (), r_min, r_max, a_c, a_r)
         n = self.num_obstacles
@@ -454,11 +465,7 @@ class ThreeLinkReach(ReachEnv):
         margin = jnp.minimum(
             self._robot_clearance(q0, obstacles), self._goal_clearance(goal, obstacles)
         ) - self.clearance
-        return (q0, qd0, goal, obstacles), margin
-
-    def sample_scene(self, key: jax.Array):
-        (q0, qd0, goal, obstacles), ok = self._reject(key, self._candidate)
-        return q0, qd0, goal, obstacles, ok
+        return (goal, obstacles), margin
 
 
 # ---------------------------------------------------------------------- Franka
@@ -496,9 +503,8 @@ class FrankaReach(ReachEnv):
             **kwargs,
         )
 
-    def _candidate(self, key: jax.Array):
-        k_q, k_p, k_r = jax.random.split(key, 3)
-        q0, qd0 = self._sample_q0(k_q)
+    def _candidate(self, key: jax.Array, q0: jax.Array):
+        k_p, k_r = jax.random.split(key)
         n = self.num_obstacles
         pts, pts_ok = samplers.half_torus_volume_uniform(k_p, (n + 1,), *self.torus)
         goal, centers = pts[0], pts[1:]
@@ -512,11 +518,7 @@ class FrankaReach(ReachEnv):
         ) - self.clearance
         margin = jnp.minimum(margin, safe_norm(goal - ee0) - self.min_goal_distance)
         margin = jnp.where(jnp.all(pts_ok), margin, -jnp.inf)
-        return (q0, qd0, goal, obstacles), margin
-
-    def sample_scene(self, key: jax.Array):
-        (q0, qd0, goal, obstacles), ok = self._reject(key, self._candidate)
-        return q0, qd0, goal, obstacles, ok
+        return (goal, obstacles), margin
 
 
 __all__ = [

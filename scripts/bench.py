@@ -60,6 +60,9 @@ ROBOTS = ("three_link", "franka")
 GPU_BATCHES = (1, 64, 1024, 4096, 16384, 65536, 262144)
 CPU_BATCHES = (1, 64, 1024, 4096)
 NAIVE_BATCHES = (1, 4096)
+ENVS = ("three_link/env3", "franka")
+GPU_ENV_BATCHES = (1024, 4096, 16384, 65536)
+CPU_ENV_BATCHES = (16, 128)
 NUM_OBSTACLES = 3
 QD_RANGE = 1.0
 ROOT = Path(__file__).resolve().parent.parent
@@ -190,6 +193,61 @@ def measure_latency(fn, input_sets: Sequence[tuple], calls: int, budget_s: float
     }
 
 
+def env_runner(env_name: str, policy: str, batch: int, steps: int):
+    """``(reset, run)``: a batch of auto-resetting environments stepped ``steps`` control steps
+    in one ``lax.scan`` with random actions (``policy="random"``) or the hand-designed RMP²
+    policy in the loop (``"rmp2"``)."""
+    import envs
+    from envs.evaluate import hand_designed_policy
+    from envs.wrappers import wrap
+
+    base = envs.make(env_name)
+    env = wrap(base)
+    rmp2_policy = jax.vmap(hand_designed_policy(base))
+
+    def act(state, key):
+        if policy == "random":
+            return jax.random.uniform(key, (batch, base.action_size), minval=-1.0, maxval=1.0)
+        return rmp2_policy(state)
+
+    def run(state, key):
+        def body(s, k):
+            s = env.step(s, act(s, k))
+            return s, s.reward
+        state, rewards = jax.lax.scan(body, state, jax.random.split(key, steps))
+        return state, jnp.mean(rewards)
+
+    return jax.jit(env.reset), jax.jit(run)
+
+
+def measure_env(env_name: str, policy: str, batch: int, steps: int, repeats: int,
+                key: jax.Array) -> dict:
+    """Control steps/s (each = 3 physics substeps) of :func:`env_runner`; median of repeats."""
+    reset, run = env_runner(env_name, policy, batch, steps)
+    k_reset, k_run = jax.random.split(key)
+    # brax's episode wrapper expects raw uint32 keys of shape (B, 2).
+    state = _block(reset(jax.random.key_data(jax.random.split(k_reset, batch))))
+    t0 = time.perf_counter()
+    state, reward = _block(run(state, k_run))
+    compile_s = time.perf_counter() - t0
+    times = []
+    for i in range(repeats):
+        t0 = time.perf_counter()
+        state, reward = _block(run(state, jax.random.fold_in(k_run, i)))
+        times.append(time.perf_counter() - t0)
+    t = statistics.median(times)
+    return {
+        "time_per_call_s": t / steps,
+        "time_min_s": min(times) / steps,
+        "time_max_s": max(times) / steps,
+        "compile_s": compile_s,
+        "repeats": repeats,
+        "calls_per_repeat": steps,
+        "finite_fraction": float(jnp.isfinite(reward)),
+        "evals_per_s": batch * steps / t,
+    }
+
+
 # --------------------------------------------------------------------------------------------
 # Formatting
 # --------------------------------------------------------------------------------------------
@@ -240,10 +298,18 @@ def format_table(rows: list[dict]) -> str:
 
 
 def summarise(rows: list[dict]) -> dict:
-    """Per robot: latency, best batch, naive ratio at the largest batch both impls ran."""
+    """Per robot: latency, best batch, naive ratio at the largest batch both impls ran; per
+    environment and policy: the best control steps/s."""
     summary = {}
-    for robot in dict.fromkeys(r["robot"] for r in rows):
-        ok = [r for r in rows if r["robot"] == robot and not r.get("error")]
+    for r in rows:
+        if r["mode"] == "env" and not r.get("error"):
+            s = summary.setdefault(f"env {r['robot']}", {})
+            name = f"{r['impl']}_best_steps_per_s"
+            if r["evals_per_s"] > s.get(name, 0.0):
+                s[name] = r["evals_per_s"]
+                s[f"{r['impl']}_best_env_batch"] = r["batch"]
+    for robot in dict.fromkeys(r["robot"] for r in rows if r["mode"] != "env"):
+        ok = [r for r in rows if r["robot"] == robot and not r.get("error") and r["mode"] != "env"]
         rmp2 = {r["batch"]: r for r in ok if r["impl"] == "rmp2" and r["mode"] == "batched"}
         nv = {r["batch"]: r for r in ok if r["impl"] == "naive" and r["mode"] == "batched"}
         s: dict = {}
@@ -268,6 +334,10 @@ def format_summary(summary: dict) -> str:
     lines = []
     for robot, s in summary.items():
         parts = []
+        for impl in ("random", "rmp2"):
+            if f"{impl}_best_steps_per_s" in s:
+                parts.append(f"{impl} actions: best {fmt_rate(s[f'{impl}_best_steps_per_s'])} "
+                             f"control steps (batch {s[f'{impl}_best_env_batch']})")
         if "rmp2_best_batch" in s:
             parts.append(f"best RMP² batch {s['rmp2_best_batch']} "
                          f"({fmt_rate(s['rmp2_best_evals_per_s'])})")
@@ -325,6 +395,14 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--quick", action="store_true", help="tiny sizes, for a smoke test")
     p.add_argument("--json", type=Path, default=None,
                    help="output path (default results/bench_<device>.json)")
+    p.add_argument("--envs", nargs="+", default=None,
+                   help=f"environments for control-step throughput (default {ENVS}; "
+                        "'none' skips; --quick skips unless given)")
+    p.add_argument("--env-batches", nargs="+", type=int, default=None,
+                   help=f"environment batch sizes (default GPU {GPU_ENV_BATCHES}, "
+                        f"CPU {CPU_ENV_BATCHES})")
+    p.add_argument("--env-steps", type=int, default=None,
+                   help="control steps per timed call (default 100; CPU 20)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--async-dispatch", action="store_true",
                    help="on CPU, keep JAX's asynchronous dispatch (default: synchronous, the "
@@ -340,6 +418,14 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     if args.batches is None:
         args.batches = [1, 16] if args.quick else list(
             CPU_BATCHES if on_cpu and not args.full else GPU_BATCHES)
+    if args.envs is None:
+        args.envs = [] if args.quick else list(ENVS)
+    args.envs = [e for e in args.envs if e != "none"]
+    if args.env_batches is None:
+        args.env_batches = [4] if args.quick else list(
+            CPU_ENV_BATCHES if on_cpu and not args.full else GPU_ENV_BATCHES)
+    if args.env_steps is None:
+        args.env_steps = 5 if args.quick else (20 if on_cpu else 100)
     if args.naive_batches is None:
         args.naive_batches = [1, 16] if args.quick else list(NAIVE_BATCHES)
     args.naive_batches = [b for b in args.naive_batches if b > 0]
@@ -412,9 +498,25 @@ def main(argv: Sequence[str] | None = None) -> dict:
             plan.append((robot, "naive", "single", 1))
             plan += [(robot, "naive", "batched", b) for b in args.naive_batches]
 
+    for env_name in args.envs:
+        plan += [(env_name, policy, "env", b) for policy in ("random", "rmp2")
+                 for b in args.env_batches]
+
     samplers = {robot: make_sampler(robot) for robot in args.robots}
     compiled: dict = {}
     for robot, impl, mode, batch in plan:
+        if mode == "env":
+            key, k = jax.random.split(key)
+            row = {"robot": robot, "impl": impl, "mode": mode, "batch": batch}
+            try:
+                row.update(measure_env(robot, impl, batch, args.env_steps, args.repeats, k))
+            except Exception as err:  # e.g. out of device memory at the largest batches
+                row["error"] = f"{type(err).__name__}: {err}"[:500]
+                row["evals_per_s"] = None
+            result["rows"].append(row)
+            result["summary"] = summarise(result["rows"])
+            _write(path, result)
+            continue
         fn = policy_function(robot, impl)
         if (robot, impl, mode) not in compiled:
             compiled[(robot, impl, mode)] = jax.jit(jax.vmap(fn) if mode == "batched" else fn)
