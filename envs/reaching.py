@@ -451,13 +451,13 @@ class ThreeLinkReach(ReachEnv):
     def _candidate(self, key: jax.Array, q0: jax.Array):
         k_g, k_c, k_r = jax.random.split(key, 3)
         r_min, r_max, a_c, a_r = self.goal_region
-        goal = samplers.annulus_area_uniform(k_g, (), r_min, r_max, a_c, a_r)
+        goal = samplers.annulus(k_g, (), r_min, r_max, a_c, a_r)
         n = self.num_obstacles
         lo, hi = self.obstacle_region
         if self.obstacle_sampler == "thesis":
-            centers = samplers.annulus_area_uniform(k_c, (n,), lo, hi)
+            centers = samplers.annulus(k_c, (n,), lo, hi)
         else:
-            centers = samplers.annulus_radius_uniform(k_c, (n,), lo, hi)
+            centers = samplers.annulus(k_c, (n,), lo, hi, area_uniform=False)
         radius = jax.random.uniform(
             k_r, (n,), minval=self.obstacle_radius_range[0], maxval=self.obstacle_radius_range[1]
         )

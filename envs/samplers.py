@@ -9,10 +9,10 @@ is valid it falls back to the candidate with the largest validity score and repo
 
 Region conventions (angles in radians, counter-clockwise from +x):
 
-* :func:`annulus_area_uniform`: area-uniform in ``{r_min ≤ ‖p‖ ≤ r_max}`` ∩ the sector
+* :func:`annulus`: area-uniform in ``{r_min ≤ ‖p‖ ≤ r_max}`` ∩ the sector
   ``|angle − angle_center| ≤ angle_range/2`` (``r = √U(r_min², r_max²)``).
-* :func:`annulus_radius_uniform`: the original implementation's 2-D "torus" sampler, uniform in
-  the *radius* (not area-uniform) — used by the ``obstacle_sampler="original"`` option.
+* :func:`annulus` with ``area_uniform=False``: the original implementation's 2-D "torus"
+  sampler, uniform in the *radius* (not area-uniform) — used by ``obstacle_sampler="original"``.
 * :func:`half_torus_volume_uniform`: volume-uniform in the solid torus around the z-axis
   (major radius ``R``, minor radius ``r``, centre height ``h``) restricted to azimuths
   ``|φ − angle_center| ≤ angle_range/2`` (the "front half" for ``angle_range = π``), by box
@@ -39,32 +39,22 @@ def take(tree, idx: jax.Array):
     return jax.tree.map(lambda x: x[idx], tree)
 
 
-def annulus_area_uniform(
+def annulus(
     key: jax.Array,
     shape: tuple[int, ...],
     r_min: float,
     r_max: float,
     angle_center: float = 0.0,
     angle_range: float = 2.0 * math.pi,
+    area_uniform: bool = True,
 ) -> jax.Array:
-    """Area-uniform points ``shape + (2,)`` in an annular sector."""
+    """Points ``shape + (2,)`` in an annular sector: area-uniform, or (``area_uniform=False``)
+    with the radius uniform in ``[r_min, r_max]`` as the original implementation's sampler."""
     k_r, k_a = jax.random.split(key)
-    r = jnp.sqrt(jax.random.uniform(k_r, shape, minval=r_min**2, maxval=r_max**2))
-    a = angle_center + angle_range * (jax.random.uniform(k_a, shape) - 0.5)
-    return jnp.stack([r * jnp.cos(a), r * jnp.sin(a)], axis=-1)
-
-
-def annulus_radius_uniform(
-    key: jax.Array,
-    shape: tuple[int, ...],
-    r_min: float,
-    r_max: float,
-    angle_center: float = 0.0,
-    angle_range: float = 2.0 * math.pi,
-) -> jax.Array:
-    """Points ``shape + (2,)`` with radius ~ U[r_min, r_max] and angle uniform in the sector."""
-    k_r, k_a = jax.random.split(key)
-    r = jax.random.uniform(k_r, shape, minval=r_min, maxval=r_max)
+    if area_uniform:
+        r = jnp.sqrt(jax.random.uniform(k_r, shape, minval=r_min**2, maxval=r_max**2))
+    else:
+        r = jax.random.uniform(k_r, shape, minval=r_min, maxval=r_max)
     a = angle_center + angle_range * (jax.random.uniform(k_a, shape) - 0.5)
     return jnp.stack([r * jnp.cos(a), r * jnp.sin(a)], axis=-1)
 
@@ -115,8 +105,7 @@ def half_torus_volume_uniform(
 
 
 __all__ = [
-    "annulus_area_uniform",
-    "annulus_radius_uniform",
+    "annulus",
     "first_valid",
     "half_torus_volume_uniform",
     "in_half_torus",
