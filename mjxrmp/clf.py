@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 
 from mjxrmp.gds import Metric, Potential, curvature_terms, potential_gradient
+from mjxrmp.leaves import safe_norm
 from mjxrmp.rmp import RMP
 
 Nominal = Callable[[jax.Array, jax.Array], jax.Array]
@@ -49,17 +50,9 @@ __all__ = [
     "potential_nominal",
     "project_halfspace",
     "quadratic_alpha",
-    "safe_norm",
     "sinusoidal_nominal",
     "spiral_nominal",
 ]
-
-
-def safe_norm(v: jax.Array) -> jax.Array:
-    """Euclidean norm with a finite (zero) gradient at ``v = 0`` (double-``where`` trick)."""
-    sq = jnp.sum(v * v, axis=-1)
-    pos = sq > 0
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, sq, 1.0)), 0.0)
 
 
 def quadratic_alpha(gamma: float = 1.0) -> ClassK:
