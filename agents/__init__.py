@@ -1,1 +1,1 @@
-"""Learners: PPO and learning from demonstrations (built in later milestones)."""
+"""Learners: PPO (``agents.ppo``) and, later, learning from demonstrations."""
