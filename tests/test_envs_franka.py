@@ -98,6 +98,7 @@ def test_half_torus_sampler_is_volume_uniform():
         jax.random.PRNGKey(2))
     assert float(jnp.mean(ok)) > 0.999
     p = np.asarray(pts)[np.asarray(ok)]
+    assert bool(np.all(np.asarray(samplers.in_half_torus(jnp.asarray(p), 0.5, 0.3, 0.5))))
     rho = np.hypot(p[:, 0], p[:, 1])
     # Volume-uniform: the mean distance from the axis is R + r²/(4R) = 0.545 (Pappus), not R.
     assert abs(rho.mean() - 0.545) < 0.005
