@@ -19,9 +19,7 @@ import jax.numpy as jnp
 from brax.envs.base import Env, State, Wrapper
 from brax.envs.wrappers.training import EpisodeWrapper, VmapWrapper
 
-from mjxrmp import policies, rmp2
-from mjxrmp.leaves import target_rmp
-from mjxrmp.rmp import RMP
+from mjxrmp import policies
 
 #: ``state.info`` entries owned by brax's ``EpisodeWrapper``: kept across an automatic reset.
 EPISODE_KEYS = ("steps", "truncation", "episode_done", "episode_metrics")
@@ -119,23 +117,7 @@ class RMPInEnv(Wrapper):
         cfg = self.policy_config
         A_r, a_r = self.squash(jnp.where(jnp.isfinite(action), action, 0.0))
         q, qd, goal, obstacles = self.env.unwrapped.policy_inputs(state)
-
-        def task_map(q_, goal_, obstacles_, cfg_, A_r_, a_r_):
-            del A_r_, a_r_
-            return policies.task_map(q_, goal_, obstacles_, cfg_)
-
-        def leaf_fn(x, xd, goal_, obstacles_, cfg_, A_r_, a_r_):
-            out = policies.leaf_rmps(x, xd, goal_, obstacles_, cfg_)
-            M_h, f_h = target_rmp(x["target"], xd["target"], goal_, cfg_.target)
-            a_h = jnp.linalg.solve(M_h[0], f_h[0])
-            L = jnp.linalg.cholesky(M_h[0])
-            B = A_r_ + L
-            M = B @ B.T
-            a = a_r_ + a_h
-            out["target"] = RMP(M[None], (M @ a)[None])
-            return out
-
-        return rmp2.acceleration(task_map, leaf_fn, q, qd, goal, obstacles, cfg, A_r, a_r)
+        return policies.residual_rmp_acceleration(cfg, q, qd, goal, obstacles, A_r, a_r)
 
     def step(self, state: State, action: jax.Array) -> State:
         return self.env.step(state, self.joint_acceleration(state, action))

@@ -259,3 +259,40 @@ def acceleration(
     """Joint acceleration ``q̈`` of the hand-designed RMP² policy (Algorithm 2, eq 3.10)."""
     _check_context(cfg, goal, obstacles)
     return rmp2.acceleration(task_map, leaf_rmps, q, qd, goal, obstacles, cfg, debug=debug)
+
+
+def residual_rmp_acceleration(
+    cfg: PolicyConfig,
+    q: jax.Array,
+    qd: jax.Array,
+    goal: jax.Array,
+    obstacles: Obstacles,
+    A_r: jax.Array,
+    a_r: jax.Array,
+) -> jax.Array:
+    """RMP² acceleration with the target leaf replaced by a residual end-effector RMP (§6.2.2).
+
+    With the hand-designed target RMP ``(M_h, a_h)`` of ``cfg`` (the ``residual_rmp`` preset's
+    hand-designed part), the learned leaf is ``M = (A_r + chol(M_h))(A_r + chol(M_h))ᵀ`` and
+    ``a = a_r + a_h``; all other leaves stay hand-designed. ``A_r (m, m)`` and ``a_r (m,)`` are the
+    (already squashed) network outputs; ``A_r = 0, a_r = 0`` gives back the hand-designed policy.
+    """
+    if cfg.target is None:
+        raise ValueError("residual_rmp_acceleration needs a PolicyConfig with a target leaf")
+    _check_context(cfg, goal, obstacles)
+    exact = jax.lax.Precision.HIGHEST
+
+    def task_map_r(q_, goal_, obstacles_, cfg_, A_r_, a_r_):
+        del A_r_, a_r_
+        return task_map(q_, goal_, obstacles_, cfg_)
+
+    def leaf_fn(x, xd, goal_, obstacles_, cfg_, A_r_, a_r_):
+        out = leaf_rmps(x, xd, goal_, obstacles_, cfg_)
+        M_h, f_h = out["target"]
+        a_h = jnp.linalg.solve(M_h[0], f_h[0])
+        B = A_r_ + jnp.linalg.cholesky(M_h[0])
+        M = jnp.matmul(B, B.T, precision=exact)
+        out["target"] = RMP(M[None], jnp.matmul(M, a_r_ + a_h, precision=exact)[None])
+        return out
+
+    return rmp2.acceleration(task_map_r, leaf_fn, q, qd, goal, obstacles, cfg, A_r, a_r)

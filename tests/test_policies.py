@@ -163,3 +163,29 @@ def test_three_link_policy_reaches_free_goal_and_never_collides():
     pts = jax.vmap(robot.control_points)(qs[1])
     clearance = jnp.linalg.norm(pts - blocking.center[0], axis=-1) - 0.025 - blocking.radius[0]
     assert float(clearance.min()) > 0.0  # ... and never touches it
+
+
+def test_residual_rmp_acceleration_matches_float64_reference():
+    """The residual end-effector RMP (§6.2.2) composed in NumPy, through the FD reference."""
+    rng = np.random.default_rng(11)
+    cfg = policies.three_link_config("residual_rmp")
+    with jax.enable_x64(True):
+        q, qd, goal, centers, radii = (jnp.asarray(a) for a in random_context("three_link", rng))
+        obs = make_obstacles(centers, radii)
+        A_r = jnp.asarray(rng.normal(size=(2, 2)))
+        a_r = jnp.asarray(rng.uniform(-1, 1, size=2))
+
+        def leaves_np(x, xd, goal_, obstacles_, cfg_):
+            out = policies.leaf_rmps(x, xd, goal_, obstacles_, cfg_)
+            M_h, f_h = (np.asarray(v[0]) for v in out["target"])
+            B = np.asarray(A_r) + np.linalg.cholesky(M_h)
+            M = B @ B.T
+            f = M @ (np.asarray(a_r) + np.linalg.solve(M_h, f_h))
+            out["target"] = (M[None], f[None])
+            return out
+
+        M_ref, f_ref = reference_pullback(policies.task_map, leaves_np, q, qd, goal, obs, cfg)
+        got = policies.residual_rmp_acceleration(cfg, q, qd, goal, obs, A_r, a_r)
+        assert rel_err(got, reference_resolve(M_ref, f_ref)) <= 1e-6
+        zero = policies.residual_rmp_acceleration(cfg, q, qd, goal, obs, 0 * A_r, 0 * a_r)
+        np.testing.assert_allclose(zero, policies.acceleration(cfg, q, qd, goal, obs), rtol=1e-9)
