@@ -2,8 +2,9 @@
 
 * :class:`GaussianPolicy` — MLP mean (hidden sizes and activation configurable, output layer
   initialised with RLlib's ``normc`` scheme at scale 0.1) and a state-independent log standard
-  deviation initialised at −1. ``__call__(obs) -> (mean, log_std)``; ``log_std`` has shape
-  ``(action_size,)`` and broadcasts against ``mean``.
+  deviation initialised at −1. ``__call__(obs, norm=None) -> (mean, log_std)``, the MLP reading
+  the observation normalised by the running statistics ``norm`` (:mod:`agents.normalization`);
+  ``log_std`` has shape ``(action_size,)`` and broadcasts against ``mean``.
 * :class:`ValueMLP` — MLP (256, 128) tanh by default, scalar output: ``__call__(obs) -> (...,)``.
 
 Both work on a single observation ``(obs_size,)`` or on any leading batch shape.
@@ -16,6 +17,8 @@ from collections.abc import Callable, Sequence
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+
+from agents.normalization import RunningStats, normalize
 
 #: Activations accepted by name (``PPOConfig.policy_activation`` / ``value_activation``).
 ACTIVATIONS: dict[str, Callable[[jax.Array], jax.Array]] = {
@@ -75,9 +78,10 @@ class GaussianPolicy(nn.Module):
     log_std_init: float = -1.0
 
     @nn.compact
-    def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+    def __call__(self, obs: jax.Array, norm: RunningStats | None = None
+                 ) -> tuple[jax.Array, jax.Array]:
         mean = MLP(self.hidden_sizes, self.action_size, self.activation, self.out_scale,
-                   name="mean")(obs)
+                   name="mean")(normalize(norm, obs))
         log_std = self.param(
             "log_std", nn.initializers.constant(self.log_std_init), (self.action_size,)
         )

@@ -24,8 +24,17 @@ Kinds (:func:`make_policy`):
   ``M = (A_r + chol(M_h))(A_r + chol(M_h))ᵀ``, ``a = a_r + a_h``. It replaces the target leaf;
   the other leaves are hand-designed; RMP² resolves them into the mean (differentiable in the
   network parameters).
+* ``"rmp_residual_env"`` — RMP² inside the environment (:class:`envs.wrappers.RMPInEnv`):
+  the environment's action is the raw residual RMP ``(A_r, a_r)`` (squashed there), the policy
+  a :class:`agents.networks.GaussianPolicy` with the ``rmp_residual`` network sizes on the
+  ``residual_rmp`` observation (the default one plus goal, end-effector position and velocity).
+  :func:`make_env_and_policy` builds the pair.
 * ``"hand_designed"`` — :class:`HandDesignedPolicy`: the ``hand_designed`` preset's
   acceleration; the only parameter is the log-std (a non-learning baseline).
+
+Every module's ``__call__(obs, norm=None)`` accepts running observation statistics
+(:mod:`agents.normalization`); only MLPs that read the observation normalise it, RMP² always
+decodes the raw observation.
 """
 
 from __future__ import annotations
@@ -37,13 +46,17 @@ from collections.abc import Sequence
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+from brax.envs.base import Env
 
+import envs
 from agents.networks import MLP, GaussianPolicy
+from agents.normalization import RunningStats, normalize
+from envs.wrappers import RMPInEnv
 from mjxrmp import policies as rmp_policies
 from mjxrmp.geometry import Obstacles
 from mjxrmp.robots import get
 
-KINDS = ("nn", "nn_residual", "rmp_residual", "hand_designed")
+KINDS = ("nn", "nn_residual", "rmp_residual", "rmp_residual_env", "hand_designed")
 
 #: Default MLP hidden sizes per (kind family, robot) (thesis §6.2.2, §6.3; ANCHOR_FACTS §4).
 _NN_HIDDEN = {"three_link": (256, 128), "franka": (512, 256)}
@@ -143,7 +156,9 @@ class HandDesignedPolicy(nn.Module):
     log_std_init: float = -1.0
 
     @nn.compact
-    def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+    def __call__(self, obs: jax.Array, norm: RunningStats | None = None
+                 ) -> tuple[jax.Array, jax.Array]:
+        del norm  # nothing learned reads the observation
         dof = get(self.spec.robot).dof
         log_std = self.param("log_std", nn.initializers.constant(self.log_std_init), (dof,))
         return _hand_designed_mean(self.spec, self.rmp_config, obs), log_std
@@ -160,10 +175,11 @@ class NNResidualPolicy(nn.Module):
     log_std_init: float = -1.0
 
     @nn.compact
-    def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+    def __call__(self, obs: jax.Array, norm: RunningStats | None = None
+                 ) -> tuple[jax.Array, jax.Array]:
         dof = get(self.spec.robot).dof
         residual = MLP(tuple(self.hidden_sizes), dof, self.activation, self.out_scale,
-                       name="mean")(obs)
+                       name="mean")(normalize(norm, obs))
         log_std = self.param("log_std", nn.initializers.constant(self.log_std_init), (dof,))
         return residual + _hand_designed_mean(self.spec, self.rmp_config, obs), log_std
 
@@ -184,7 +200,9 @@ class RMPResidualPolicy(nn.Module):
     log_std_init: float = -1.0
 
     @nn.compact
-    def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+    def __call__(self, obs: jax.Array, norm: RunningStats | None = None
+                 ) -> tuple[jax.Array, jax.Array]:
+        del norm  # the network reads physical features [x, ẋ, g, {o_i}], not the observation
         robot = get(self.spec.robot)
         m, dof = robot.workspace_dim, robot.dof
         single = obs.ndim == 1
@@ -218,6 +236,16 @@ def make_policy(kind: str, env, **overrides) -> nn.Module:
     robot = get(spec.robot)
     if spec.robot not in _NN_HIDDEN:
         raise ValueError(f"make_policy supports robots {sorted(_NN_HIDDEN)}, got {spec.robot!r}")
+    if (kind == "rmp_residual_env") != isinstance(env, RMPInEnv):
+        raise ValueError(
+            f"policy kind={kind!r} " + ("needs" if kind == "rmp_residual_env" else "cannot use")
+            + " an environment wrapped in envs.RMPInEnv; build both with make_env_and_policy")
+    if kind == "rmp_residual_env":
+        fields = dict(hidden_sizes=_RMP_HIDDEN[spec.robot], activation="elu", out_scale=0.01,
+                      log_std_init=-1.0)
+        fields.update(overrides)
+        fields["hidden_sizes"] = tuple(fields["hidden_sizes"])
+        return GaussianPolicy(int(env.action_size), **fields)
     if kind == "nn":
         fields = dict(hidden_sizes=_NN_HIDDEN[spec.robot], activation="relu", out_scale=0.1,
                       log_std_init=-1.0)
@@ -242,6 +270,26 @@ def make_policy(kind: str, env, **overrides) -> nn.Module:
     return cls(**fields)
 
 
+def make_env_and_policy(env_name: str, kind: str, env_kwargs: dict | None = None,
+                        **overrides) -> tuple[Env, nn.Module]:
+    """``(env, policy)`` for training policy ``kind`` on the environment called ``env_name``.
+
+    For ``rmp_residual_env`` the environment is ``RMPInEnv(envs.make(env_name,
+    observation="residual_rmp"))``; otherwise ``envs.make(env_name, **env_kwargs)``.
+    ``overrides`` go to :func:`make_policy`. Unknown names raise ``ValueError`` listing the valid
+    ones.
+    """
+    if kind not in KINDS:
+        raise ValueError(f"unknown policy kind={kind!r}; valid kinds are {KINDS}")
+    env_kwargs = dict(env_kwargs or {})
+    if kind == "rmp_residual_env":
+        env_kwargs.setdefault("observation", "residual_rmp")
+        env = RMPInEnv(envs.make(env_name, **env_kwargs))
+    else:
+        env = envs.make(env_name, **env_kwargs)
+    return env, make_policy(kind, env, **overrides)
+
+
 __all__ = [
     "KINDS",
     "HandDesignedPolicy",
@@ -249,6 +297,7 @@ __all__ = [
     "ObservationSpec",
     "RMPResidualPolicy",
     "decode_observation",
+    "make_env_and_policy",
     "make_policy",
     "residual_features",
 ]

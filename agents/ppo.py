@@ -1,9 +1,12 @@
 """PPO (thesis §6.2.3, DESIGN §5.1): GAE, clipped surrogate, value MLP, Adam, one compiled graph.
 
-``train = make_train(env, config)``; ``train(key)`` is jittable end to end — initialisation, a
-``lax.scan`` over iterations, inside each a ``lax.scan`` rollout of ``rollout_length`` steps of
-``num_envs`` auto-resetting environments, GAE, and ``update_epochs × num_minibatches`` Adam steps
-(``lax.scan``) — and ``jax.vmap(train)(keys)`` trains several seeds in one program.
+``train = make_train(env, policy, config)``; ``train(key)`` is jittable end to end —
+initialisation, a ``lax.scan`` over iterations, inside each a ``lax.scan`` rollout of
+``rollout_length`` steps of ``num_envs`` auto-resetting environments, GAE, and
+``update_epochs × num_minibatches`` Adam steps (``lax.scan``) — and ``jax.vmap(train)(keys)``
+trains several seeds in one program. :func:`make_trainer` exposes the pieces (``init``,
+``rollout``, ``update``, ``run`` of a :class:`TrainState`) for chunked runs with checkpoints
+(:mod:`agents.checkpoint`), timing splits and data-parallel sharding over a device mesh.
 
 Truncation (time limits) in :func:`gae`
 ---------------------------------------
@@ -23,8 +26,9 @@ the next episode into this one.
 
 Metrics per iteration (arrays of length ``total_iterations``; a leading seed axis under vmap):
 ``mean_reward`` (over all ``num_envs × rollout_length`` transitions), ``episodes`` (number of
-episodes that finished in the rollout), ``mean_episode_return`` and ``safe_fraction``
-(``1 − collided`` averaged over the finished episodes; NaN when none finished), and the means
+episodes that finished in the rollout), ``mean_episode_return``, ``safe_fraction``
+(``1 − collided``) and ``success_fraction`` (the environment's ``success`` metric on the
+terminal step), averaged over the finished episodes (NaN when none finished), and the means
 over all minibatch updates of ``loss``, ``policy_loss``, ``value_loss``, ``entropy``,
 ``approx_kl``, ``clip_fraction``. Episode returns and collision flags are accumulated by the
 trainer itself (sum of rewards; max of ``state.metrics["collision"]`` when the environment has
@@ -44,8 +48,10 @@ import jax
 import jax.numpy as jnp
 import optax
 from brax.envs.base import Env
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from agents.networks import ACTIVATIONS, GaussianPolicy, ValueMLP
+from agents.normalization import RunningStats, init_stats, normalize, update_stats
 from envs.wrappers import AutoResetWrapper, wrap
 
 _LOG_2PI = math.log(2.0 * math.pi)
@@ -81,6 +87,7 @@ class PPOConfig:
     value_hidden_sizes: tuple[int, ...] = (256, 128)
     value_activation: str = "tanh"
     episode_length: int | None = None
+    normalize_observations: bool = False
 
     def __post_init__(self):
         def bad(name, why):
@@ -285,32 +292,131 @@ class Transition(NamedTuple):
     truncations: jax.Array
     episode_return: jax.Array  # running return including this step (read where dones)
     episode_collided: jax.Array
+    success: jax.Array  # the environment's "success" metric of this step (0 if it has none)
+
+
+class TrainState(NamedTuple):
+    """Everything a run needs to continue exactly: what a checkpoint holds.
+
+    ``key`` is the run's raw ``uint32 (2,)`` key; iteration ``i`` uses ``fold_in(key, i)``, so a
+    run split into chunks (or resumed from a checkpoint) draws the same random numbers as an
+    uninterrupted one. ``iteration`` counts the iterations done.
+    """
+
+    params: dict[str, Any]
+    opt_state: Any
+    env_state: Any
+    episode_return: jax.Array
+    episode_collided: jax.Array
+    obs_stats: RunningStats
+    key: jax.Array
+    iteration: jax.Array
+
+
+def _raw_key(key: jax.Array) -> jax.Array:
+    """A raw ``uint32 (2,)`` key from a typed or a raw ``key``."""
+    if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
+        return jax.random.key_data(key)
+    return key
 
 
 def _raw_keys(key: jax.Array, n: int) -> jax.Array:
     """``n`` raw ``uint32 (n, 2)`` keys, for a typed or a raw ``key``."""
-    keys = jax.random.split(key, n)
-    if jnp.issubdtype(keys.dtype, jax.dtypes.prng_key):
-        keys = jax.random.key_data(keys)
-    return keys
+    return _raw_key(jax.random.split(key, n))
 
 
-def make_train(
+def batch_axis_sharding(mesh: Mesh | None, num_envs: int):
+    """``constrain(tree, axis)``: shard every leaf whose dimension ``axis`` is the environment
+    batch (size ``num_envs``) over the mesh's first axis, replicate the others (identity when
+    ``mesh`` is None)."""
+    if mesh is None:
+        return lambda tree, axis=0: tree
+    name = mesh.axis_names[0]
+
+    def constrain(tree, axis=0):
+        def one(x):
+            if x.ndim > axis and x.shape[axis] == num_envs:
+                spec = PartitionSpec(*([None] * axis), name)
+            else:
+                spec = PartitionSpec()
+            return jax.lax.with_sharding_constraint(x, NamedSharding(mesh, spec))
+
+        return jax.tree.map(one, tree)
+
+    return constrain
+
+
+@dataclasses.dataclass(frozen=True)
+class Trainer:
+    """The pieces of one PPO program (see :func:`make_trainer`); every function is jittable.
+
+    * ``init(key) -> TrainState``;
+    * ``rollout(ts, key) -> (ts, Transition)``: ``rollout_length`` steps of every environment;
+    * ``update(ts, transitions, key) -> (ts, metrics)``: GAE, the SGD epochs, statistics;
+    * ``run(ts, num_iterations) -> (ts, metrics)``: ``num_iterations`` (static) iterations in a
+      ``lax.scan``, metrics stacked along a leading axis;
+    * ``train(key) -> (params, metrics)``: ``run(init(key), config.total_iterations)``.
+    """
+
+    config: PPOConfig
+    policy: nn.Module
+    value_net: nn.Module
+    env: Env
+    init: Callable[[jax.Array], TrainState]
+    rollout: Callable[[TrainState, jax.Array], tuple[TrainState, Transition]]
+    update: Callable[[TrainState, Transition, jax.Array], tuple[TrainState, dict]]
+    run: Callable[[TrainState, int], tuple[TrainState, dict]]
+
+    def train(self, key: jax.Array) -> tuple[dict[str, Any], dict[str, jax.Array]]:
+        """Initialise and run ``config.total_iterations`` iterations; ``(params, metrics)``."""
+        ts, metrics = self.run(self.init(key), self.config.total_iterations)
+        return ts.params, metrics
+
+    def policy_norm(self, ts: TrainState) -> RunningStats | None:
+        """The statistics the policy's networks read (None without observation normalisation)."""
+        return ts.obs_stats if self.config.normalize_observations else None
+
+
+def make_trainer(
     env: Env,
-    config: PPOConfig,
     policy: nn.Module | None = None,
-) -> Callable[[jax.Array], tuple[dict[str, Any], dict[str, jax.Array]]]:
-    """``train(key) -> (params, metrics)`` for a single (un-batched) brax environment.
+    config: PPOConfig | None = None,
+    mesh: Mesh | None = None,
+) -> Trainer:
+    """The PPO program for a single (un-batched) brax environment; see :class:`Trainer`.
 
     ``env`` is wrapped with :func:`envs.wrappers.wrap` (vmap → episode limit ``config.
     episode_length`` → auto-reset with a new scene) unless it already is an
     :class:`envs.wrappers.AutoResetWrapper` around a batched env. ``policy`` is a flax module
-    with ``__call__(obs) -> (mean, log_std)``; default :class:`agents.networks.GaussianPolicy`
-    built from ``config``. ``params = {"policy": ..., "value": ...}``; metrics: see the module
-    docstring. ``key`` may be a typed key or a raw ``uint32 (2,)`` key.
+    with ``__call__(obs, norm=None) -> (mean, log_std)`` (:mod:`agents.policies`); default
+    :class:`agents.networks.GaussianPolicy` built from ``config`` (default :class:`PPOConfig`).
+    ``params = {"policy": ..., "value": ...}``; metrics: see the module docstring.
+
+    With ``config.normalize_observations`` the policy's networks and the value network read
+    observations normalised by running statistics (initialised from the first observations,
+    merged with each iteration's rollout after its update, so an iteration's rollout and update
+    see the same statistics); RMP² always reads the raw observation.
+
+    ``mesh`` (a :class:`jax.sharding.Mesh`) shards the environment batch, the rollout and every
+    minibatch over the mesh's first axis and replicates the parameters (data parallelism: XLA
+    all-reduces the gradients). ``num_envs`` and the minibatch size must be divisible by the
+    mesh size. The same code runs on one CPU, several GPUs or several hosts (after
+    ``jax.distributed.initialize``) and computes the same numbers up to summation order.
     """
+    if isinstance(policy, PPOConfig):
+        raise TypeError("make_trainer(env, policy, config): pass the PPOConfig as config=")
+    config = PPOConfig() if config is None else config
     if not isinstance(config, PPOConfig):
         raise TypeError(f"config must be a PPOConfig, got {type(config).__name__}")
+    if policy is not None and not isinstance(policy, nn.Module):
+        raise TypeError(f"policy must be a flax.linen Module, got {type(policy).__name__}")
+    if mesh is not None:
+        if not isinstance(mesh, Mesh):
+            raise TypeError(f"mesh must be a jax.sharding.Mesh or None, got {type(mesh)}")
+        for name, n in (("num_envs", config.num_envs), ("minibatch_size", config.minibatch_size)):
+            if n % mesh.size:
+                raise ValueError(f"PPOConfig {name}={n} must be divisible by the mesh size "
+                                 f"{mesh.size} to shard the environment batch")
     obs_size = int(env.observation_size)
     action_size = int(env.action_size)
     batched = env if isinstance(env, AutoResetWrapper) else wrap(env, config.episode_length)
@@ -323,68 +429,102 @@ def make_train(
             log_std_init=config.log_std_init,
         )
     value_net = ValueMLP(config.value_hidden_sizes, config.value_activation)
-    policy_apply, value_apply = policy.apply, value_net.apply
     tx = optax.adam(config.learning_rate, eps=config.adam_eps)
     if config.max_grad_norm is not None:
         tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), tx)
     n_envs, n_mb, mb_size = config.num_envs, config.num_minibatches, config.minibatch_size
-    loss_fn = jax.value_and_grad(
-        lambda p, b: ppo_loss(p, b, policy_apply, value_apply, config.clip_eps,
-                              config.vf_coef, config.ent_coef, config.normalize_advantages),
-        has_aux=True,
-    )
+    constrain = batch_axis_sharding(mesh, n_envs)
+    constrain_mb = batch_axis_sharding(mesh, mb_size)
+    use_norm = config.normalize_observations
+
+    def norm_of(stats):
+        return stats if use_norm else None
+
+    def policy_apply(p, obs, stats):
+        return policy.apply(p, obs, norm_of(stats))
+
+    def value_apply(p, obs, stats):
+        return value_net.apply(p, normalize(norm_of(stats), obs))
+
+    def loss(p, b, stats):
+        return ppo_loss(p, b, lambda pp, o: policy_apply(pp, o, stats),
+                        lambda pp, o: value_apply(pp, o, stats), config.clip_eps,
+                        config.vf_coef, config.ent_coef, config.normalize_advantages)
+
+    loss_grad = jax.value_and_grad(loss, has_aux=True)
+
+    def init(key):
+        key = _raw_key(key)
+        k_pol, k_val, k_env = jax.random.split(key, 3)
+        dummy = jnp.zeros((obs_size,), jnp.float32)
+        params = {"policy": policy.init(k_pol, dummy), "value": value_net.init(k_val, dummy)}
+        state = constrain(batched.reset(_raw_keys(k_env, n_envs)))
+        stats = init_stats(obs_size)
+        if use_norm:
+            stats = update_stats(stats, state.obs)
+        zeros = constrain(jnp.zeros((n_envs,), jnp.float32))
+        return TrainState(params, tx.init(params), state, zeros, zeros, stats,
+                          jax.random.fold_in(key, 1), jnp.zeros((), jnp.int32))
 
     def env_step(carry, key):
-        params, state, ep_ret, ep_col = carry
+        params, stats, state, ep_ret, ep_col = carry
         obs = state.obs
-        mean, log_std = policy_apply(params["policy"], obs)
+        mean, log_std = policy_apply(params["policy"], obs, stats)
         noise = jax.random.normal(key, mean.shape, mean.dtype)
         action = mean + jnp.exp(log_std) * noise
         log_prob = gaussian_log_prob(action, mean, log_std)
-        value = value_apply(params["value"], obs)
-        state = batched.step(state, action)
+        value = value_apply(params["value"], obs, stats)
+        state = constrain(batched.step(state, action))
         reward = state.reward.astype(jnp.float32)
         done = state.done.astype(jnp.float32)
         trunc = state.info["truncation"].astype(jnp.float32)
         collision = state.metrics.get("collision", jnp.zeros_like(reward))
+        success = state.metrics.get("success", jnp.zeros_like(reward)).astype(jnp.float32)
         ep_ret = ep_ret + reward
         ep_col = jnp.maximum(ep_col, collision.astype(jnp.float32))
-        tr = Transition(obs, action, log_prob, value, reward, done, trunc, ep_ret, ep_col)
+        tr = Transition(obs, action, log_prob, value, reward, done, trunc, ep_ret, ep_col,
+                        success)
         ep_ret = jnp.where(done > 0, 0.0, ep_ret)
         ep_col = jnp.where(done > 0, 0.0, ep_col)
-        return (params, state, ep_ret, ep_col), tr
+        return (params, stats, state, ep_ret, ep_col), tr
+
+    def rollout(ts, key):
+        carry = (ts.params, ts.obs_stats, ts.env_state, ts.episode_return, ts.episode_collided)
+        (_, _, state, ep_ret, ep_col), tr = jax.lax.scan(
+            env_step, carry, jax.random.split(key, config.rollout_length))
+        ts = ts._replace(env_state=state, episode_return=ep_ret, episode_collided=ep_col)
+        return ts, constrain(tr, 1)
 
     def update_minibatch(carry, mb):
-        params, opt_state = carry
-        (_, metrics), grads = loss_fn(params, mb)
+        params, opt_state, stats = carry
+        (_, metrics), grads = loss_grad(params, constrain_mb(mb), stats)
         updates, opt_state = tx.update(grads, opt_state, params)
         params = optax.apply_updates(params, updates)
-        return (params, opt_state), metrics
+        return (params, opt_state, stats), metrics
 
     def update_epoch(carry, key):
-        params, opt_state, flat = carry
+        params, opt_state, stats, flat = carry
         perm = jax.random.permutation(key, config.batch_size)
         mbs = jax.tree.map(lambda x: x[perm].reshape((n_mb, mb_size, *x.shape[1:])), flat)
-        (params, opt_state), metrics = jax.lax.scan(update_minibatch, (params, opt_state), mbs)
-        return (params, opt_state, flat), metrics
+        mbs = constrain_mb(mbs, 1)
+        (params, opt_state, _), metrics = jax.lax.scan(
+            update_minibatch, (params, opt_state, stats), mbs)
+        return (params, opt_state, stats, flat), metrics
 
-    def iteration(carry, key):
-        params, opt_state, state, ep_ret, ep_col = carry
-        k_roll, k_upd = jax.random.split(key)
-        (_, state, ep_ret, ep_col), tr = jax.lax.scan(
-            env_step, (params, state, ep_ret, ep_col),
-            jax.random.split(k_roll, config.rollout_length),
-        )
-        last_value = value_apply(params["value"], state.obs)
+    def update(ts, tr, key):
+        stats = ts.obs_stats
+        last_value = value_apply(ts.params["value"], ts.env_state.obs, stats)
         adv, ret = gae(tr.rewards, tr.values, tr.dones, tr.truncations, last_value,
                        config.gamma, config.gae_lambda)
         flat = {"obs": tr.obs, "actions": tr.actions, "log_probs": tr.log_probs,
                 "advantages": adv, "returns": ret}
         flat = jax.tree.map(lambda x: x.reshape((config.batch_size, *x.shape[2:])), flat)
-        (params, opt_state, _), upd = jax.lax.scan(
-            update_epoch, (params, opt_state, flat),
-            jax.random.split(k_upd, config.update_epochs),
+        (params, opt_state, _, _), upd = jax.lax.scan(
+            update_epoch, (ts.params, ts.opt_state, stats, flat),
+            jax.random.split(key, config.update_epochs),
         )
+        if use_norm:
+            stats = update_stats(stats, tr.obs)
         n_done = jnp.sum(tr.dones)
         denom = jnp.maximum(n_done, 1.0)
         nan = jnp.asarray(jnp.nan, jnp.float32)
@@ -396,31 +536,48 @@ def make_train(
                 n_done > 0, jnp.sum(tr.dones * tr.episode_return) / denom, nan),
             safe_fraction=jnp.where(
                 n_done > 0, jnp.sum(tr.dones * (1.0 - tr.episode_collided)) / denom, nan),
+            success_fraction=jnp.where(
+                n_done > 0, jnp.sum(tr.dones * tr.success) / denom, nan),
         )
-        return (params, opt_state, state, ep_ret, ep_col), metrics
+        ts = ts._replace(params=params, opt_state=opt_state, obs_stats=stats,
+                         iteration=ts.iteration + 1)
+        return ts, metrics
 
-    def train(key):
-        k_pol, k_val, k_env, k_iter = jax.random.split(key, 4)
-        dummy = jnp.zeros((obs_size,), jnp.float32)
-        params = {"policy": policy.init(k_pol, dummy), "value": value_net.init(k_val, dummy)}
-        opt_state = tx.init(params)
-        state = batched.reset(_raw_keys(k_env, n_envs))
-        zeros = jnp.zeros((n_envs,), jnp.float32)
-        carry = (params, opt_state, state, zeros, zeros)
-        (params, *_), metrics = jax.lax.scan(
-            iteration, carry, jax.random.split(k_iter, config.total_iterations)
-        )
-        return params, metrics
+    def iteration(ts, _):
+        k_roll, k_upd = jax.random.split(jax.random.fold_in(ts.key, ts.iteration))
+        ts, tr = rollout(ts, k_roll)
+        return update(ts, tr, k_upd)
 
-    return train
+    def run(ts, num_iterations):
+        return jax.lax.scan(iteration, ts, None, length=num_iterations)
+
+    return Trainer(config, policy, value_net, batched, init, rollout, update, run)
+
+
+def make_train(
+    env: Env,
+    policy: nn.Module | None = None,
+    config: PPOConfig | None = None,
+    mesh: Mesh | None = None,
+) -> Callable[[jax.Array], tuple[dict[str, Any], dict[str, jax.Array]]]:
+    """``train(key) -> (params, metrics)``: :meth:`Trainer.train` of :func:`make_trainer`.
+
+    Jittable end to end; ``jax.vmap(train)(keys)`` trains several seeds in one program. ``key``
+    may be a typed key or a raw ``uint32 (2,)`` key.
+    """
+    return make_trainer(env, policy, config, mesh).train
 
 
 __all__ = [
     "PPOConfig",
+    "TrainState",
+    "Trainer",
     "Transition",
+    "batch_axis_sharding",
     "gae",
     "gaussian_entropy",
     "gaussian_log_prob",
     "make_train",
+    "make_trainer",
     "ppo_loss",
 ]

@@ -9,12 +9,14 @@ import pytest
 
 import envs
 from agents.networks import GaussianPolicy
+from agents.normalization import RunningStats
 from agents.policies import (
     KINDS,
     HandDesignedPolicy,
     NNResidualPolicy,
     RMPResidualPolicy,
     decode_observation,
+    make_env_and_policy,
     make_policy,
 )
 from agents.ppo import PPOConfig, make_train
@@ -98,7 +100,7 @@ def test_make_policy_defaults(three_link):
         make_policy("transformer", env)
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", [k for k in KINDS if k != "rmp_residual_env"])
 def test_log_std_init_and_shapes(three_link, kind):
     env, states = three_link
     pol = make_policy(kind, env)
@@ -162,13 +164,48 @@ TINY = PPOConfig(num_envs=4, rollout_length=8, num_minibatches=1, update_epochs=
 def test_rmp_residual_trains_one_iteration(three_link):
     env, _ = three_link
     pol = make_policy("rmp_residual", env)
-    params, metrics = jax.jit(make_train(env, TINY, pol))(jax.random.PRNGKey(8))
+    params, metrics = jax.jit(make_train(env, pol, TINY))(jax.random.PRNGKey(8))
     assert set(params["policy"]["params"]) == {"log_std", "residual"}
     for k in ("loss", "policy_loss", "value_loss", "mean_reward"):
         assert metrics[k].shape == (1,)
         assert bool(jnp.all(jnp.isfinite(metrics[k]))), k
     assert bool(jnp.all(jnp.isfinite(jnp.concatenate(
         [x.ravel() for x in jax.tree.leaves(params)]))))
+
+
+def test_rmp_residual_env_pair():
+    """``rmp_residual_env``: RMPInEnv on the residual-RMP observation + a small Gaussian MLP whose
+    zero output reproduces the ``residual_rmp`` base policy inside the environment."""
+    env, pol = make_env_and_policy("three_link/env3", "rmp_residual_env")
+    assert isinstance(env, RMPInEnv) and env.unwrapped.observation_variant == "residual_rmp"
+    assert isinstance(pol, GaussianPolicy) and pol.action_size == 6
+    assert pol.hidden_sizes == (128, 64) and pol.activation == "elu" and pol.out_scale == 0.01
+    with pytest.raises(ValueError, match="RMPInEnv"):
+        make_policy("rmp_residual_env", envs.make("three_link/env3"))
+    with pytest.raises(ValueError, match="RMPInEnv"):
+        make_policy("nn", env)
+    with pytest.raises(ValueError, match="valid kinds"):
+        make_env_and_policy("three_link/env3", "mlp")
+    with pytest.raises(ValueError, match="valid names"):
+        make_env_and_policy("three_link/env9", "nn")
+
+
+def test_normalisation_never_reaches_rmp2(three_link):
+    """Observation statistics change what MLPs read, never what RMP² reads."""
+    env, states = three_link
+    stats = RunningStats(jnp.float32(10.0), jnp.full((26,), 3.0), jnp.full((26,), 0.01))
+    for kind in ("hand_designed", "rmp_residual"):
+        pol = make_policy(kind, env)
+        params = pol.init(jax.random.PRNGKey(9), states.obs[0])
+        np.testing.assert_array_equal(pol.apply(params, states.obs, stats)[0],
+                                      pol.apply(params, states.obs)[0])
+    pol = make_policy("nn_residual", env)
+    params = pol.init(jax.random.PRNGKey(9), states.obs[0])
+    zeroed = _zero_subtree(params, "mean")
+    np.testing.assert_array_equal(pol.apply(zeroed, states.obs, stats)[0],
+                                  pol.apply(zeroed, states.obs)[0])
+    assert not np.allclose(pol.apply(params, states.obs, stats)[0],
+                           pol.apply(params, states.obs)[0])
 
 
 def test_rmp_in_env_squashes_and_plumbs_the_residual_action(three_link):

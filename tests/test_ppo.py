@@ -233,7 +233,7 @@ TINY = PPOConfig(num_envs=4, rollout_length=8, num_minibatches=2, update_epochs=
 
 
 def test_vmap_over_seeds_equals_separate_runs():
-    train = make_train(envs.make("point2d"), TINY)
+    train = make_train(envs.make("point2d"), config=TINY)
     keys = jnp.stack([jax.random.PRNGKey(3), jax.random.PRNGKey(4)])
     params_v, metrics_v = jax.jit(jax.vmap(train))(keys)
     single = jax.jit(train)
@@ -255,7 +255,7 @@ def test_training_improves_on_move_to_zero():
     cfg = PPOConfig(num_envs=16, rollout_length=16, num_minibatches=2, update_epochs=4,
                     total_iterations=40, learning_rate=3e-3, gamma=0.9, gae_lambda=0.9,
                     policy_hidden_sizes=(16,), value_hidden_sizes=(16,), episode_length=16)
-    _, m = jax.jit(make_train(MoveToZero(), cfg))(jax.random.PRNGKey(0))
+    _, m = jax.jit(make_train(MoveToZero(), config=cfg))(jax.random.PRNGKey(0))
     r = np.asarray(m["mean_reward"])
     first, last = r[:3].mean(), r[-5:].mean()
     # Random policy: E|x| ≈ 0.5 (x0 ~ U[−1, 1], std-0.37 noise); moving at 0.2/step towards 0
