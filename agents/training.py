@@ -339,6 +339,42 @@ def build(spec: RunSpec, mesh: Mesh | None = None) -> Program:
                     mesh)
 
 
+def profile_iteration(program: Program, state: TrainState, repeats: int = 3) -> dict[str, float]:
+    """Median wall time (s) of one iteration's pieces for all seeds, compiled separately:
+    ``rollout`` (environment + policy sampling, ``rollout_length`` steps), ``policy_forward``
+    (the policy alone — RMP² included — on the rollout's ``rollout_length × num_envs``
+    observations) and ``update`` (GAE + every epoch and minibatch, RMP² backprop included).
+    Does not change ``state``."""
+    trainer = program.trainer
+    n = trainer.config.rollout_length
+    key = jax.random.PRNGKey(0)
+    keys = jnp.broadcast_to(key, (state.iteration.shape[0], 2))
+    rollout = jax.jit(jax.vmap(trainer.rollout))
+    update = jax.jit(jax.vmap(trainer.update))
+    _, tr = rollout(state, keys)
+
+    def forward(ts, obs):
+        def body(c, o):
+            return c, trainer.policy.apply(ts.params["policy"], o, trainer.policy_norm(ts))[0]
+
+        return jax.lax.scan(body, 0, obs)[1]
+
+    forward = jax.jit(jax.vmap(forward))
+    pieces = {"rollout": lambda: rollout(state, keys),
+              "policy_forward": lambda: forward(state, tr.obs[:, :n]),
+              "update": lambda: update(state, tr, keys)}
+    out = {}
+    for name, fn in pieces.items():
+        jax.block_until_ready(fn())
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn())
+            times.append(time.perf_counter() - t0)
+        out[name] = float(np.median(times))
+    return out
+
+
 def seed_keys(seeds: tuple[int, ...]) -> jax.Array:
     """Raw keys ``(num_seeds, 2)`` for the seeds."""
     return jnp.stack([jax.random.PRNGKey(s) for s in seeds])
@@ -454,6 +490,7 @@ __all__ = [
     "nanmean",
     "plot_curves",
     "preset",
+    "profile_iteration",
     "read_csv",
     "run_training",
     "seed_keys",
