@@ -410,6 +410,14 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--pin-cpu", type=int, default=None, metavar="CORE",
                    help="pin the process to one CPU core before JAX starts (Linux; the usual "
                         "setting for measuring single-state control-loop latency)")
+    p.add_argument("--ppo", nargs="+", default=[], metavar="ENV:POLICY",
+                   help="PPO training throughput rows, e.g. three_link/env3:rmp_residual")
+    p.add_argument("--ppo-devices", nargs="+", type=int, default=[1],
+                   help="device counts for the PPO rows (environment batch sharded)")
+    p.add_argument("--ppo-iterations", type=int, default=3, help="iterations per timed chunk")
+    p.add_argument("--ppo-seeds", type=int, default=4, help="vmapped seeds in the PPO rows")
+    p.add_argument("--ppo-preset", default="thesis", help="PPO settings of the PPO rows")
+    p.add_argument("--ppo-only", action="store_true", help="only the PPO rows")
     args = p.parse_args(argv)
     if args.pin_cpu is not None:
         # Threads XLA creates later inherit this affinity: no hand-offs between cores.
@@ -441,6 +449,33 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     if args.repeats < 1 or args.latency_calls < 1:
         p.error("--repeats and --latency-calls must be >= 1")
     return args
+
+
+def measure_ppo(env_name: str, policy: str, devices: int, iterations: int, seeds: int,
+                preset_name: str) -> dict:
+    """PPO training throughput: environment steps/s of a compiled chunk of ``iterations``
+    iterations for ``seeds`` vmapped seeds, the environment batch sharded over ``devices``
+    devices (after a warm-up chunk); compile time; on one device also the per-iteration split
+    (:func:`agents.training.profile_iteration`)."""
+    from agents.training import RunSpec, build, make_mesh, preset, profile_iteration, seed_keys
+
+    spec = RunSpec(env=env_name, policy=policy, seeds=tuple(range(seeds)),
+                   ppo=preset(preset_name))
+    program = build(spec, make_mesh(devices))
+    state = jax.block_until_ready(program.init(seed_keys(spec.seeds)))
+    exe = program.executable(state, iterations)
+    state, _ = jax.block_until_ready(exe(state))
+    t0 = time.perf_counter()
+    state, _ = jax.block_until_ready(exe(state))
+    dt = time.perf_counter() - t0
+    steps = iterations * spec.ppo.batch_size * seeds
+    row = {"env": env_name, "policy": policy, "devices": devices, "seeds": seeds,
+           "preset": preset_name, "iterations": iterations, "env_steps": steps,
+           "seconds": dt, "steps_per_s": steps / dt, "iteration_s": dt / iterations,
+           "compile_s": program.compile_seconds}
+    if devices == 1:
+        row["iteration_split_s"] = profile_iteration(program, state)
+    return row
 
 
 def precision_check(robot: str, key: jax.Array, n: int) -> dict:
@@ -489,6 +524,22 @@ def main(argv: Sequence[str] | None = None) -> dict:
         "rows": [],
         "summary": {},
     }
+    if args.ppo:
+        result["ppo"] = []
+        for item in args.ppo:
+            env_name, _, policy = item.partition(":")
+            for n in args.ppo_devices:
+                row = measure_ppo(env_name, policy or "rmp_residual", n, args.ppo_iterations,
+                                  args.ppo_seeds, args.ppo_preset)
+                result["ppo"].append(row)
+                _write(path, result)
+                print(f"PPO {row['policy']} on {row['env']}, {row['seeds']} seeds, {n} "
+                      f"device(s): {row['steps_per_s']:.3g} env steps/s, "
+                      f"{row['iteration_s']:.3f} s/iteration, compile {row['compile_s']:.1f} s"
+                      + (f", split {row['iteration_split_s']}" if n == 1 else ""), flush=True)
+        if args.ppo_only:
+            print(f"JSON: {path}", flush=True)
+            return result
     key = jax.random.key(args.seed)
     plan = []
     for robot in args.robots:
