@@ -430,10 +430,15 @@ def run_training(spec: RunSpec, out_dir: str, resume: bool = False, progress: bo
     train_s = 0.0
     steps_per_iter = cfg.batch_size * len(spec.seeds)
 
+    saved = [done]
+
     def save(at: int):
+        if at == saved[0] and checkpoint.latest_step(ckpt_dir) == at:
+            return
         meta = dict(spec.identity(), iteration=at, history=_history_to_json(history),
                     run=spec.to_json())
         checkpoint.save(ckpt_dir, at, state, meta)
+        saved[0] = at
 
     try:
         while done < total:

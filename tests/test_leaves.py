@@ -180,7 +180,7 @@ def test_presets_reproduce_original_values():
     assert t.cspace_target is None and t.joint_limit is None
     assert (t.target.boost, t.velocity_cap.max_velocity) == (20.0, 1.0)
     assert t.damping.damping_gain == 30.0
-    # The one documented departure: the 3-link hand-designed collision metric length scale
+    # The one documented departure: the 3-link collision metric length scale (every variant)
     # (original 0.02, 0.1 for the ±1 rad/s² action clip); everything else is the original.
     assert t.collision == leaves.CollisionParams(metric_std=0.1)
     assert leaves.CollisionParams().metric_std == 0.02
@@ -188,7 +188,8 @@ def test_presets_reproduce_original_values():
     assert (tr.target.k_p, tr.target.k_d, tr.target.boost) == (5.0, 10.0, 5.0)
     assert tr.velocity_cap.damping_region == 0.1 and tr.damping.damping_gain == 5.0
     for variant in ("residual_base", "residual_rmp"):
-        assert policies.three_link_config(variant).collision == leaves.CollisionParams()
+        assert policies.three_link_config(variant).collision == leaves.CollisionParams(
+            metric_std=0.1)
     assert f.collision == leaves.CollisionParams()
 
 
