@@ -2,14 +2,17 @@
 
 Usage::
 
+    python scripts/export.py --checkpoint runs/three_link-env3_rmp_residual \\
+        --out exported/policy.jaxexport [--step N] [--train-seed-index 0] \\
+        [--platforms cpu cuda] [--matmul-precision highest]
     python scripts/export.py --env three_link/env3 --policy rmp_residual \\
-        --out exported/policy.jaxexport [--seed 0] [--platforms cpu cuda] \\
-        [--matmul-precision highest]
+        --out exported/untrained.jaxexport [--seed 0]
 
-exports a freshly initialised policy of that kind (``make_policy(kind, envs.make(env))``,
-``params = module.init(PRNGKey(seed), zeros(obs_size))``). The export itself is
-:func:`export_from_params`, which takes any parameters of that policy (e.g. from a training
-checkpoint). Load the result with ``scripts/load_policy.py``.
+The first form exports a trained policy: the newest (or ``--step``) checkpoint of a run
+directory written by ``scripts/train.py``, one training seed, with its observation statistics
+baked in (:func:`agents.runs.deterministic_policy`). The second exports a freshly initialised
+policy of that kind (``params = module.init(PRNGKey(seed), zeros(obs_size))``). The export
+itself is :func:`export_from_params`. Load the result with ``scripts/load_policy.py``.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -30,7 +33,7 @@ import jax.numpy as jnp
 
 import envs
 from agents.export import MATMUL_PRECISIONS, export_policy
-from agents.policies import KINDS, make_policy
+from agents.policies import KINDS, make_env_and_policy
 
 #: Environments the policy classes support: the reaching environments (not ``point2d``).
 EXPORTABLE_ENVS = tuple(sorted(
@@ -53,10 +56,10 @@ def check_names(env_name: str, kind: str) -> None:
 
 
 def build(env_name: str, kind: str):
-    """``(env, module)``: the environment ``env_name`` and its policy module of ``kind``."""
+    """``(env, module)``: the environment ``env_name`` (wrapped as in training) and its policy
+    module of ``kind``."""
     check_names(env_name, kind)
-    env = envs.make(env_name)
-    return env, make_policy(kind, env)
+    return make_env_and_policy(env_name, kind)
 
 
 def init_params(env_name: str, kind: str, seed: int = 0):
@@ -68,8 +71,13 @@ def init_params(env_name: str, kind: str, seed: int = 0):
 def export_from_params(env_name: str, kind: str, params, out: str | os.PathLike,
                        metadata: dict | None = None,
                        platforms: Sequence[str] = ("cpu", "cuda"),
-                       matmul_precision: str | None = None) -> dict:
+                       matmul_precision: str | None = None,
+                       apply_fn: Callable | None = None) -> dict:
     """Export the deterministic mean of the ``kind`` policy for ``env_name`` with ``params``.
+
+    ``apply_fn(params, obs) -> mean`` defaults to the module's mean on the raw observation;
+    pass :func:`agents.runs.deterministic_policy`'s pair for a checkpoint (observation
+    statistics included).
 
     The manifest's ``metadata`` holds ``env``, ``policy``, ``robot``, ``observation_layout``
     (``{name: [start, stop]}``) and ``action`` (what the action means), updated with
@@ -84,11 +92,16 @@ def export_from_params(env_name: str, kind: str, params, out: str | os.PathLike,
         "policy": kind,
         "robot": str(base.robot_name),
         "observation_layout": layout,
-        "action": "joint-acceleration mean (unclipped; the environment clips)",
+        "action": ("raw residual RMP (A_r row-major, a_r), squashed by envs.RMPInEnv"
+                   if kind == "rmp_residual_env"
+                   else "joint-acceleration mean (unclipped; the environment clips)"),
     }
     meta.update(metadata or {})
+    if apply_fn is None:
+        def apply_fn(p, o):
+            return module.apply(p, o)[0]
     return export_policy(
-        lambda p, o: module.apply(p, o)[0],
+        apply_fn,
         params,
         int(env.observation_size),
         out,
@@ -101,9 +114,15 @@ def export_from_params(env_name: str, kind: str, params, out: str | os.PathLike,
 def main(argv: list[str] | None = None) -> int:
     """CLI entry point (see the module docstring)."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--env", required=True, choices=EXPORTABLE_ENVS,
-                        help="environment name")
-    parser.add_argument("--policy", required=True, choices=list(KINDS), help="policy kind")
+    parser.add_argument("--checkpoint", default=None, metavar="RUN_DIR",
+                        help="export a trained policy from this run directory")
+    parser.add_argument("--step", type=int, default=None,
+                        help="checkpoint iteration (default: the newest)")
+    parser.add_argument("--train-seed-index", type=int, default=0,
+                        help="which of the run's training seeds to export")
+    parser.add_argument("--env", default=None, choices=EXPORTABLE_ENVS,
+                        help="environment name (an untrained policy; not with --checkpoint)")
+    parser.add_argument("--policy", default=None, choices=list(KINDS), help="policy kind")
     parser.add_argument("--out", required=True, type=Path, help="output file (.jaxexport)")
     parser.add_argument("--seed", type=int, default=0, help="initialisation seed")
     parser.add_argument("--platforms", nargs="+", default=["cpu", "cuda"],
@@ -112,11 +131,28 @@ def main(argv: list[str] | None = None) -> int:
                         help="bake this float32 matmul precision in (default: the backend's)")
     args = parser.parse_args(argv)
 
-    params = init_params(args.env, args.policy, args.seed)
-    manifest = export_from_params(args.env, args.policy, params, args.out,
-                                  {"source": "init", "seed": args.seed, "iteration": 0},
+    if args.checkpoint is not None:
+        if args.env is not None or args.policy is not None:
+            parser.error("--env/--policy come from the run directory with --checkpoint")
+        from agents.runs import deterministic_policy, load_run
+
+        try:
+            run = load_run(args.checkpoint, args.step)
+            apply_fn, params = deterministic_policy(run, args.train_seed_index)
+        except (FileNotFoundError, ValueError, IndexError) as e:
+            parser.error(str(e))
+        env_name, kind = run.spec.env, run.spec.policy
+        meta = {"source": "checkpoint", "checkpoint": os.path.abspath(args.checkpoint),
+                "iteration": run.iteration, "seed": run.seeds[args.train_seed_index]}
+    else:
+        if args.env is None or args.policy is None:
+            parser.error("give --checkpoint RUN_DIR, or --env and --policy")
+        env_name, kind, apply_fn = args.env, args.policy, None
+        params = init_params(env_name, kind, args.seed)
+        meta = {"source": "init", "seed": args.seed, "iteration": 0}
+    manifest = export_from_params(env_name, kind, params, args.out, meta,
                                   platforms=args.platforms,
-                                  matmul_precision=args.matmul_precision)
+                                  matmul_precision=args.matmul_precision, apply_fn=apply_fn)
     print(f"wrote {args.out} ({manifest['size_bytes']} bytes, sha256 {manifest['sha256'][:12]}…)"
           f" and {args.out.with_suffix('.json')}")
     print(f"obs ({manifest['obs_size']},) -> action ({manifest['action_size']},); platforms "

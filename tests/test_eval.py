@@ -195,3 +195,30 @@ def test_cli_writes_json(trained, tmp_path, capsys):
     assert "available: [2, 4]" in capsys.readouterr().err
     assert ev.main([str(tmp_path / "missing")]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_export_checkpoint_matches_deterministic_policy(trained, tmp_path):
+    """scripts/export.py --checkpoint bakes the trained parameters and the observation
+    statistics in: the loaded export acts as the checkpoint's mean policy."""
+    _, out = trained
+    scripts = os.path.join(ROOT, "scripts")
+    sys.path.insert(0, scripts)
+    try:
+        import export as export_script
+        import load_policy
+    finally:
+        sys.path.remove(scripts)
+    path = tmp_path / "p.jaxexport"
+    assert export_script.main(["--checkpoint", out, "--train-seed-index", "1", "--out",
+                               str(path), "--platforms", "cpu"]) == 0
+    loaded = load_run(out)
+    apply_fn, params = deterministic_policy(loaded, 1)
+    assert params.norm is not None  # normalize_observations=True in SPEC
+    obs = np.asarray(jax.random.normal(jax.random.PRNGKey(5), (7, 16)), np.float32)
+    expected = np.asarray(jax.jit(apply_fn)(params, obs))
+    got = load_policy.load_policy(path)(obs)
+    np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-6)
+    manifest = json.loads(path.with_suffix(".json").read_text())
+    assert manifest["metadata"]["iteration"] == 4 and manifest["metadata"]["seed"] == 1
+    with pytest.raises(SystemExit):
+        export_script.main(["--out", str(path)])
