@@ -49,11 +49,11 @@ CURVES = (("mean_episode_return", "mean episode return", 1.0),
 
 def cpu_preset(**overrides) -> PPOConfig:
     """The main job's CPU-sized PPO settings: 64 environments × 128 steps, 4 minibatches of
-    2,048, 4 epochs, 200 iterations (1.6 M environment steps; about 4 minutes on 2 CPU cores
+    2,048, 4 epochs, 400 iterations (3.3 M environment steps; about 5 minutes on 2 CPU cores
     for ``rmp_residual`` on ``three_link/env3``)."""
     base = dict(num_envs=64, rollout_length=128, num_minibatches=4, update_epochs=4,
                 learning_rate=3e-4, gamma=0.99, gae_lambda=0.95, max_grad_norm=0.5,
-                total_iterations=200)
+                total_iterations=400)
     base.update(overrides)
     return PPOConfig(**base)
 
@@ -166,9 +166,19 @@ def nanmean(x: np.ndarray, axis=None) -> np.ndarray | float:
         return np.nanmean(x, axis=axis)
 
 
-def summary_line(history: dict[str, np.ndarray], steps_per_second: float) -> str:
-    """Seed-mean metrics of the newest iteration, formatted for the progress bar."""
-    last = {k: float(nanmean(v[:, -1])) for k, v in history.items()}
+def summary_line(history: dict[str, np.ndarray], steps_per_second: float,
+                 window: int = 1) -> str:
+    """Seed-mean metrics of the newest ``window`` iterations (episode metrics weighted by the
+    episodes that finished in each), formatted for the progress bar."""
+    eps = np.nan_to_num(history["episodes"][:, -window:]) if "episodes" in history else None
+    last = {}
+    for k, v in history.items():
+        v = v[:, -window:]
+        if eps is not None and k in ("mean_episode_return", "safe_fraction",
+                                     "success_fraction") and eps.sum() > 0:
+            last[k] = float(np.nansum(np.nan_to_num(v) * eps) / eps.sum())
+        else:
+            last[k] = float(nanmean(v))
     return (f"reward {_fmt(last['mean_reward'])} | "
             f"return {_fmt(last['mean_episode_return'])} | "
             f"safe {_fmt(last['safe_fraction'], 100, '.1f')}% | "
@@ -224,8 +234,47 @@ def read_csv(path: str) -> tuple[dict[str, np.ndarray], tuple[int, ...]]:
     return history, seeds
 
 
-def plot_curves(history: dict[str, np.ndarray], path: str, title: str = "") -> None:
-    """Learning curves (mean ± 1 std over seeds) of :data:`CURVES` to the PNG ``path``."""
+def episode_window(history: dict[str, np.ndarray], key: str,
+                   min_episodes: int = 100) -> np.ndarray:
+    """Per-episode metric ``key`` averaged, at every iteration, over the episodes finished in
+    the trailing window of iterations that holds at least ``min_episodes`` episodes — RLlib's
+    reporting (``metrics_num_episodes_for_smoothing = 100``), which the thesis's curves use.
+
+    Per-iteration values are noisy here because the 128 environments start together: an
+    iteration in which only a few (early-terminated, i.e. collided) episodes end reports e.g.
+    0 % safe from one episode. ``(seeds, iterations)`` in, same shape out.
+    """
+    n = np.nan_to_num(history["episodes"])
+    v = np.nan_to_num(history[key]) * n
+    out = np.full(n.shape, np.nan)
+    for s in range(n.shape[0]):
+        for i in range(n.shape[1]):
+            j, total, acc = i, 0.0, 0.0
+            while j >= 0 and total < min_episodes:
+                total, acc = total + n[s, j], acc + v[s, j]
+                j -= 1
+            if total > 0:
+                out[s, i] = acc / total
+    return out
+
+
+def moving_average(x: np.ndarray, k: int) -> np.ndarray:
+    """Trailing NaN-aware moving average over the last axis (window ``k`` iterations)."""
+    if k <= 1:
+        return x
+    out = np.full(x.shape, np.nan)
+    for i in range(x.shape[-1]):
+        out[..., i] = nanmean(x[..., max(0, i - k + 1): i + 1], axis=-1)
+    return out
+
+
+def plot_curves(history: dict[str, np.ndarray], path: str, title: str = "",
+                min_episodes: int = 100, reward_window: int = 1) -> None:
+    """Learning curves (mean ± 1 std over seeds) of :data:`CURVES` to the PNG ``path``.
+
+    Episode metrics average the trailing ≥ ``min_episodes`` finished episodes
+    (:func:`episode_window`); the step reward is a ``reward_window``-iteration moving average
+    (one episode length smooths out the phase of episodes that start together)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -236,7 +285,10 @@ def plot_curves(history: dict[str, np.ndarray], path: str, title: str = "") -> N
         if key not in history:
             ax.set_visible(False)
             continue
-        v = history[key] * scale
+        if key == "mean_reward" or "episodes" not in history:
+            v = moving_average(history[key], reward_window) * scale
+        else:
+            v = episode_window(history, key, min_episodes) * scale
         it = np.arange(1, v.shape[1] + 1)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
@@ -245,6 +297,8 @@ def plot_curves(history: dict[str, np.ndarray], path: str, title: str = "") -> N
         ax.fill_between(it, mean - std, mean + std, alpha=0.25)
         ax.set_xlabel("iteration")
         ax.set_ylabel(label)
+        if scale == 100.0:
+            ax.set_ylim(-2, 102)
         ax.grid(alpha=0.3)
     if title:
         fig.suptitle(title)
@@ -458,7 +512,7 @@ def run_training(spec: RunSpec, out_dir: str, resume: bool = False, progress: bo
             write_csv(csv_path, history, spec.seeds, cfg.batch_size)
             tb.write(history, start, spec.seeds, cfg.batch_size)
             if bar is not None:
-                bar.update(done, summary_line(history, n * steps_per_iter / dt))
+                bar.update(done, summary_line(history, n * steps_per_iter / dt, window=n))
             if done % spec.checkpoint_every == 0 or done == total:
                 save(done)
     except KeyboardInterrupt:
@@ -474,8 +528,12 @@ def run_training(spec: RunSpec, out_dir: str, resume: bool = False, progress: bo
     if bar is not None:
         bar.close()
     if history:
+        horizon = cfg.episode_length or int(getattr(program.trainer.env.unwrapped, "horizon",
+                                                    cfg.rollout_length))
         plot_curves(history, os.path.join(out_dir, "learning_curves.png"),
-                    f"{spec.policy} on {spec.env} ({len(spec.seeds)} seed(s))")
+                    f"{spec.policy} on {spec.env} ({len(spec.seeds)} seed(s))",
+                    min_episodes=max(100, 3 * cfg.num_envs),
+                    reward_window=-(-horizon // cfg.rollout_length))
     return RunResult(history, state, program.trainer,
                      program.compile_seconds - compile_before, train_s,
                      (done * steps_per_iter) if history else 0)
@@ -490,8 +548,10 @@ __all__ = [
     "RunSpec",
     "build",
     "cpu_preset",
+    "episode_window",
     "improvement_summary",
     "make_mesh",
+    "moving_average",
     "nanmean",
     "plot_curves",
     "preset",

@@ -65,7 +65,7 @@ from agents.runs import (  # noqa: E402
     policy_params,
     read_spec,
 )
-from envs.evaluate import make_rollout  # noqa: E402
+from envs.evaluate import make_rollout, summarize  # noqa: E402
 
 #: Setups a reaching policy can be evaluated on (every reaching environment).
 SETUPS = ("three_link/env1", "three_link/env2", "three_link/env3", "franka")
@@ -240,15 +240,11 @@ def _num(x: float) -> float | None:
 
 def seed_summary(per_episode: dict[str, np.ndarray]) -> dict[str, float]:
     """Mean return, success %, safe %, final goal distance, length and non-finite % over one
-    member's episodes (arrays ``(num_episodes,)``)."""
-    return {
-        "mean_return": float(np.mean(per_episode["return"])),
-        "success_pct": 100.0 * float(np.mean(per_episode["success"])),
-        "safe_pct": 100.0 * float(np.mean(per_episode["safe"])),
-        "mean_final_goal_distance": float(np.mean(per_episode["final_goal_distance"])),
-        "mean_length": float(np.mean(per_episode["length"])),
-        "nonfinite_pct": 100.0 * float(np.mean(per_episode["nonfinite"])),
-    }
+    member's episodes (arrays ``(num_episodes,)``; :func:`envs.evaluate.summarize`)."""
+    keys = ("mean_return", "success_pct", "safe_pct", "mean_final_goal_distance",
+            "mean_length", "nonfinite_pct")
+    summary = summarize({**per_episode, "sampler_ok": np.ones_like(per_episode["return"])})
+    return {k: summary[k] for k in keys}
 
 
 def summarize_sweep(sweep: Sweep, per_episode: bool = False) -> list[dict[str, Any]]:
@@ -357,33 +353,6 @@ def format_table(rows: Sequence[dict[str, Any]]) -> str:
 # animation
 
 
-def trajectory(env, policy, key: jax.Array, steps: int) -> dict[str, Any]:
-    """One episode (frozen after done) in the format of ``scripts/render.py``'s ``rollout``:
-    joint positions, done flags, goal distances, goal, obstacles and the episode return."""
-    @jax.jit
-    def run(key):
-        state = env.reset(key)
-
-        def body(s, _):
-            new = env.step(s, policy(s))
-            new = jax.tree.map(lambda a, b: jnp.where(s.done > 0, b, a), new, s)
-            return new, (new.pipeline_state.qpos, new.done, new.metrics["goal_distance"])
-
-        final, traj = jax.lax.scan(body, state, None, length=steps)
-        return state, final, traj
-
-    first, final, (qs, done, dist) = run(key)
-    return {
-        "q": np.concatenate([np.asarray(first.pipeline_state.qpos)[None], np.asarray(qs)]),
-        "done": np.concatenate([[0.0], np.asarray(done)]),
-        "goal_distance": np.concatenate([[np.nan], np.asarray(dist)]),
-        "goal": np.asarray(first.info["goal"]),
-        "centers": np.asarray(first.info["obstacles"].center),
-        "radii": np.asarray(first.info["obstacles"].radius),
-        "return": float(final.info["episode_return"]),
-    }
-
-
 def render_gif(loaded: LoadedRun, seed: int, setup: str, path: str, eval_seed: int = 0,
                num_episodes: int = 256, horizon: int | None = None, every: int = 3,
                fps: int = 20) -> dict[str, Any]:
@@ -402,7 +371,7 @@ def render_gif(loaded: LoadedRun, seed: int, setup: str, path: str, eval_seed: i
     steps = int(env.horizon if horizon is None else horizon)
     apply_fn, params = mean_action_fn(loaded), policy_params(loaded, loaded.seeds.index(seed))
     key = jax.random.split(jax.random.PRNGKey(eval_seed), num_episodes)[0]
-    data = trajectory(env, env_policy(apply_fn, params), key, steps)
+    data = render.trajectory(env, env_policy(apply_fn, params), key, steps)
     sub = {k: (v[::every] if k in ("q", "done", "goal_distance") else v) for k, v in data.items()}
     robot = env.unwrapped.robot_name
     anim_fn = render._animate_three_link if robot == "three_link" else render._animate_franka

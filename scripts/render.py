@@ -30,9 +30,9 @@ _CHAIN = ("link0", "link1", "link2", "link3", "link4", "link5", "link6", "link7"
           "hand", "grasp_target")
 
 
-def rollout(env, seed: int, steps: int) -> dict:
-    """Joint positions, goal, obstacles and done flags of one episode (frozen after done)."""
-    policy = evaluate.hand_designed_policy(env)
+def trajectory(env, policy, key: jax.Array, steps: int) -> dict:
+    """One episode of ``policy(state) -> action`` from ``env.reset(key)`` (frozen after done):
+    joint positions, done flags, goal distances, goal, obstacles and the episode return."""
 
     @jax.jit
     def run(key):
@@ -46,7 +46,7 @@ def rollout(env, seed: int, steps: int) -> dict:
         final, traj = jax.lax.scan(body, state, None, length=steps)
         return state, final, traj
 
-    first, final, (qs, done, dist) = run(jax.random.PRNGKey(seed))
+    first, final, (qs, done, dist) = run(key)
     q0 = np.asarray(first.pipeline_state.qpos)[None]
     return {
         "q": np.concatenate([q0, np.asarray(qs)]),
@@ -57,6 +57,11 @@ def rollout(env, seed: int, steps: int) -> dict:
         "radii": np.asarray(first.info["obstacles"].radius),
         "return": float(final.info["episode_return"]),
     }
+
+
+def rollout(env, seed: int, steps: int) -> dict:
+    """:func:`trajectory` of the hand-designed RMP² policy from ``PRNGKey(seed)``."""
+    return trajectory(env, evaluate.hand_designed_policy(env), jax.random.PRNGKey(seed), steps)
 
 
 def _animate_three_link(data: dict, fps: int):

@@ -44,6 +44,7 @@ from agents import checkpoint
 from agents.training import (
     RunSpec,
     build,
+    episode_window,
     nanmean,
     preset,
     profile_iteration,
@@ -109,30 +110,6 @@ def load_runs(runs: str) -> dict[tuple[str, str], dict[str, np.ndarray]]:
             path = os.path.join(run_dir(runs, env, policy), "metrics.csv")
             if os.path.exists(path):
                 out[(env, policy)] = read_csv(path)[0]
-    return out
-
-
-def episode_window(history: dict[str, np.ndarray], key: str,
-                   min_episodes: int = 100) -> np.ndarray:
-    """Per-episode metric ``key`` averaged, at every iteration, over the episodes finished in
-    the trailing window of iterations that holds at least ``min_episodes`` episodes — RLlib's
-    reporting (``metrics_num_episodes_for_smoothing = 100``), which the thesis's curves use.
-
-    Per-iteration values are noisy here because the 128 environments start together: an
-    iteration in which only a few (early-terminated, i.e. collided) episodes end reports e.g.
-    0 % safe from one episode. ``(seeds, iterations)`` in, same shape out.
-    """
-    n = np.nan_to_num(history["episodes"])
-    v = np.nan_to_num(history[key]) * n
-    out = np.full(n.shape, np.nan)
-    for s in range(n.shape[0]):
-        for i in range(n.shape[1]):
-            j, total, acc = i, 0.0, 0.0
-            while j >= 0 and total < min_episodes:
-                total, acc = total + n[s, j], acc + v[s, j]
-                j -= 1
-            if total > 0:
-                out[s, i] = acc / total
     return out
 
 
