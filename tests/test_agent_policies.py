@@ -55,6 +55,7 @@ def test_decode_matches_policy_inputs(three_link):
     env, states = three_link
     q, qd, goal, obstacles = _inputs(env, states)
     dq, dqd, dgoal, dobs = decode_observation(env, states.obs)
+    np.testing.assert_allclose(dqd, qd, atol=1e-6)
     np.testing.assert_allclose(dq, q, atol=1e-5)
     np.testing.assert_allclose(dqd, qd, atol=1e-5)
     np.testing.assert_allclose(dgoal, goal, atol=1e-5)
@@ -220,3 +221,42 @@ def test_rmp_in_env_squashes_and_plumbs_the_residual_action(three_link):
     got = jax.vmap(lambda *a: rmp_policies.residual_rmp_acceleration(cfg, *a))(
         *_inputs(env, states), A_r, a_r)
     np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-4)
+
+
+def test_franka_policy_classes():
+    """Every kind on the Franka (45-d observation, 7 joints; thesis §6.3 sizes): shapes, RMP²
+    inputs decoded exactly, zero residuals give the presets, rmp_residual_env acts 3×3 + 3."""
+    env = envs.make("franka")
+    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(1), 2))
+    q, qd, goal, obstacles = jax.vmap(env.policy_inputs)(states)
+    dq, dqd, dgoal, dobs = decode_observation(env, states.obs)
+    np.testing.assert_allclose(dqd, qd, atol=1e-6)
+    np.testing.assert_allclose(dq, q, atol=1e-5)
+    np.testing.assert_allclose(dgoal, goal, atol=1e-5)
+    np.testing.assert_allclose(dobs.radius, obstacles.radius, atol=1e-6)
+
+    def preset(variant):
+        cfg = rmp_policies.default_config("franka", variant)
+        return jax.jit(jax.vmap(lambda *a: rmp_policies.acceleration(cfg, *a)))(
+            q, qd, goal, obstacles)
+
+    for kind, hidden in (("nn", (512, 256)), ("nn_residual", (512, 256)),
+                         ("rmp_residual", (256, 128)), ("hand_designed", None)):
+        pol = make_policy(kind, env)
+        if hidden is not None:
+            assert tuple(pol.hidden_sizes) == hidden, kind
+        params = jax.jit(pol.init)(jax.random.PRNGKey(2), states.obs[0])
+        apply = jax.jit(pol.apply)
+        mean, log_std = apply(params, states.obs)
+        assert mean.shape == (2, 7) and log_std.shape == (7,), kind
+        assert bool(jnp.all(jnp.isfinite(mean))), kind
+        if kind == "hand_designed":
+            np.testing.assert_allclose(mean, preset("hand_designed"), rtol=1e-4, atol=1e-4)
+        elif kind in ("nn_residual", "rmp_residual"):
+            sub = "mean" if kind == "nn_residual" else "residual"
+            variant = "residual_base" if kind == "nn_residual" else "residual_rmp"
+            np.testing.assert_allclose(apply(_zero_subtree(params, sub), states.obs)[0],
+                                       preset(variant), rtol=1e-4, atol=1e-4)
+    wrapped, pol = make_env_and_policy("franka", "rmp_residual_env")
+    assert wrapped.action_size == 12 and pol.action_size == 12
+    assert wrapped.observation_size == 45 + 9  # goal, end-effector position and velocity
