@@ -23,6 +23,7 @@ import jax.numpy as jnp
 from brax.envs.base import Env, State
 
 from envs import samplers
+from envs.checks import check_action
 from mjxrmp.geometry import Obstacles
 from mjxrmp.leaves import safe_norm
 
@@ -146,6 +147,7 @@ class PointRobot2D(Env):
         return State(PointState(start, xd), obs, z, z, metrics, info)
 
     def step(self, state: State, action: jax.Array) -> State:
+        check_action(action, self.action_size)
         info = dict(state.info)
         goal, obstacles = info["goal"], info["obstacles"]
         a = jnp.clip(jnp.where(jnp.isfinite(action), action, 0.0), -self.action_limit,

@@ -50,6 +50,7 @@ from mujoco import mjx
 
 import mjxrmp  # noqa: F401  (sets the XLA:CPU flag before JAX initialises)
 from envs import samplers
+from envs.checks import check_action
 from mjxrmp.geometry import Obstacles
 from mjxrmp.leaves import safe_norm
 from mjxrmp.robots import Robot, get, mjcf
@@ -353,6 +354,7 @@ class ReachEnv(Env):
         return body
 
     def step(self, state: State, action: jax.Array) -> State:
+        check_action(action, self.action_size)
         info = dict(state.info)
         goal, obstacles = info["goal"], info["obstacles"]
         a = jnp.where(jnp.isfinite(action), action, 0.0)

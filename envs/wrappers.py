@@ -19,6 +19,7 @@ import jax.numpy as jnp
 from brax.envs.base import Env, State, Wrapper
 from brax.envs.wrappers.training import EpisodeWrapper, VmapWrapper
 
+from envs.checks import check_action
 from mjxrmp import policies
 
 #: ``state.info`` entries owned by brax's ``EpisodeWrapper``: kept across an automatic reset.
@@ -120,6 +121,7 @@ class RMPInEnv(Wrapper):
         return policies.residual_rmp_acceleration(cfg, q, qd, goal, obstacles, A_r, a_r)
 
     def step(self, state: State, action: jax.Array) -> State:
+        check_action(action, self.action_size)
         return self.env.step(state, self.joint_acceleration(state, action))
 
 

@@ -87,6 +87,24 @@ def test_bad_arguments_raise():
         envs.make("three_link/env9")
 
 
+def test_bad_actions_fail_before_tracing_and_nan_never_reaches_the_state():
+    state = jax.jit(ENV.reset)(jax.random.PRNGKey(0))
+    with pytest.raises(ValueError, match=r"action must have shape \(3,\)"):
+        ENV.step(state, jnp.zeros(4))
+    with pytest.raises(ValueError, match=r"jax\.vmap"):
+        ENV.step(state, jnp.zeros((2, 3)))
+    with pytest.raises(TypeError, match="floating-point"):
+        ENV.step(state, jnp.zeros(3, jnp.int32))
+    with pytest.raises(TypeError, match="array"):
+        ENV.step(state, [0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r"\(6,\)"):
+        RMPInEnv(ENV).step(state, jnp.zeros(3))
+    out = jax.jit(ENV.step)(state, jnp.array([jnp.nan, jnp.inf, -jnp.inf]))
+    assert all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree.leaves(out.pipeline_state)
+               if jnp.issubdtype(x.dtype, jnp.floating))
+    assert bool(jnp.all(jnp.isfinite(out.obs))) and float(out.metrics["nonfinite"]) == 0.0
+
+
 def test_registry_and_brax_lookup():
     assert isinstance(envs.make("three_link/env3"), ThreeLinkReach)
     for brax_name, name in envs.BRAX_NAMES.items():
