@@ -417,6 +417,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--ppo-iterations", type=int, default=3, help="iterations per timed chunk")
     p.add_argument("--ppo-seeds", type=int, default=4, help="vmapped seeds in the PPO rows")
     p.add_argument("--ppo-preset", default="thesis", help="PPO settings of the PPO rows")
+    p.add_argument("--ppo-num-envs", type=int, default=None,
+                   help="override the preset's num_envs (a larger batch for scaling runs)")
     p.add_argument("--ppo-only", action="store_true", help="only the PPO rows")
     args = p.parse_args(argv)
     if args.pin_cpu is not None:
@@ -452,15 +454,16 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 
 
 def measure_ppo(env_name: str, policy: str, devices: int, iterations: int, seeds: int,
-                preset_name: str) -> dict:
+                preset_name: str, num_envs: int | None = None) -> dict:
     """PPO training throughput: environment steps/s of a compiled chunk of ``iterations``
     iterations for ``seeds`` vmapped seeds, the environment batch sharded over ``devices``
     devices (after a warm-up chunk); compile time; on one device also the per-iteration split
     (:func:`agents.training.profile_iteration`)."""
     from agents.training import RunSpec, build, make_mesh, preset, profile_iteration, seed_keys
 
+    overrides = {} if num_envs is None else {"num_envs": num_envs}
     spec = RunSpec(env=env_name, policy=policy, seeds=tuple(range(seeds)),
-                   ppo=preset(preset_name))
+                   ppo=preset(preset_name, **overrides))
     program = build(spec, make_mesh(devices))
     state = jax.block_until_ready(program.init(seed_keys(spec.seeds)))
     exe = program.executable(state, iterations)
@@ -470,7 +473,8 @@ def measure_ppo(env_name: str, policy: str, devices: int, iterations: int, seeds
     dt = time.perf_counter() - t0
     steps = iterations * spec.ppo.batch_size * seeds
     row = {"env": env_name, "policy": policy, "devices": devices, "seeds": seeds,
-           "preset": preset_name, "iterations": iterations, "env_steps": steps,
+           "preset": preset_name, "num_envs": spec.ppo.num_envs, "iterations": iterations,
+           "env_steps": steps,
            "seconds": dt, "steps_per_s": steps / dt, "iteration_s": dt / iterations,
            "compile_s": program.compile_seconds}
     if devices == 1:
@@ -530,7 +534,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
             env_name, _, policy = item.partition(":")
             for n in args.ppo_devices:
                 row = measure_ppo(env_name, policy or "rmp_residual", n, args.ppo_iterations,
-                                  args.ppo_seeds, args.ppo_preset)
+                                  args.ppo_seeds, args.ppo_preset, args.ppo_num_envs)
                 result["ppo"].append(row)
                 _write(path, result)
                 print(f"PPO {row['policy']} on {row['env']}, {row['seeds']} seeds, {n} "
