@@ -1,0 +1,320 @@
+"""Learn stable LASA dynamics with Euclideanizing flows (thesis §4.2, Figs 4.4 and 4.7).
+
+Usage::
+
+    python scripts/lfd_lasa.py --shapes Angle Sshape [--iterations N] [--seed 0] \\
+        [--out results/lfd_lasa]
+    python scripts/lfd_lasa.py --all [...]
+
+Every requested shape is trained in **one** compiled program: the shapes' demonstrations
+``(7, 235, 2)`` are stacked along a leading axis and :func:`agents.lfd.make_train`'s training
+step is ``vmap``-ped over it (one ``lax.scan`` per chunk of ``--log-every`` iterations, which is
+when progress is printed). Shape ``k`` of :data:`mjxrmp.data.lasa.LASA_SHAPES` draws its key from
+``fold_in(PRNGKey(seed), k)``, so a shape's result does not depend on which others are trained
+with it. Model and optimiser are :class:`agents.lfd.LfdConfig`'s defaults (ANCHOR_FACTS §6);
+``--iterations`` overrides the iteration budget (default 5000, early stop after 250 iterations
+without improvement), ``--tiny`` uses :meth:`LfdConfig.tiny` (tests).
+
+Writes to ``--out``:
+
+* ``<shape>.npz`` — ``demos (7, T, 2)``, ``rollouts (7, T, 2)`` (the learned field integrated
+  with explicit Euler and the demonstrations' ``dt`` from each demonstration's first sample, as
+  many samples as the demonstration), ``dt`` (scalar), ``losses`` (training loss per iteration);
+* ``metrics.json`` — per shape: :func:`mjxrmp.traj_metrics.all_metrics` between each rollout and
+  its demonstration (RMSE, mean error, DTW and DTW / warping-path length, Fréchet, final-point
+  error, swept error area), their means over demonstrations, the same for a straight-line
+  baseline (uniform speed from the demonstration's start to the goal over its duration), the
+  training summary, and a convergence check (rollouts from ``--check-starts`` uniform random
+  starts in the demonstrations' bounding box enlarged by 20 %, ``--check-steps`` Euler steps;
+  final distances to the goal; minimum speed on a grid of that box away from the goal; speed at
+  the goal). Lengths are in the normalised coordinates of :mod:`mjxrmp.data.lasa` (each shape's
+  demonstrations span 1 along each axis; goal at the origin);
+* ``<shape>_field.png`` — streamlines of the learned field with the demonstrations and the
+  reproductions (as Fig 4.4); ``<shape>_potential.png`` — iso-contours of
+  ``Φ(x) = ½‖φ(x) − φ(0)‖²`` with the demonstrations (as Fig 4.7).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import functools
+import json
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import mjxrmp  # noqa: F401  (sets XLA flags before any JAX computation)
+from agents.lfd import LfdConfig, rollout, train_batched
+from mjxrmp.data.lasa import LASA_SHAPES, load_shape
+from mjxrmp.traj_metrics import all_metrics
+
+#: Keys every ``<shape>.npz`` holds.
+NPZ_KEYS = ("demos", "rollouts", "dt", "losses")
+#: Enlargement of the demonstrations' bounding box for the convergence check and the figures.
+BOX_MARGIN = 0.2
+
+
+def canonical_shapes(names: list[str]) -> list[str]:
+    """Map names case-insensitively onto :data:`LASA_SHAPES`; unknown names raise ``ValueError``
+    listing the valid ones."""
+    lower = {s.lower(): s for s in LASA_SHAPES}
+    out, bad = [], []
+    for n in names:
+        (out if n.lower() in lower else bad).append(lower.get(n.lower(), n))
+    if bad:
+        raise ValueError(f"unknown LASA shape(s) {', '.join(map(repr, bad))}; the 30 valid "
+                         f"names are: {', '.join(LASA_SHAPES)}")
+    if len(set(out)) != len(out):
+        raise ValueError(f"shapes listed more than once: {names}")
+    return out
+
+
+def load_data(names: list[str]) -> dict[str, np.ndarray]:
+    shapes = [load_shape(n) for n in names]
+    return {"demos": np.stack([s.demos for s in shapes]).astype(np.float32),
+            "velocities": np.stack([s.velocities for s in shapes]).astype(np.float32),
+            "dt": np.asarray([s.dt for s in shapes], np.float32)}
+
+
+def box(demos: np.ndarray, margin: float = BOX_MARGIN) -> tuple[np.ndarray, np.ndarray]:
+    """The bounding box of ``demos (..., 2)`` enlarged by ``margin`` (fraction of its size)
+    about its centre: ``(lo (2,), hi (2,))``."""
+    lo = demos.reshape(-1, 2).min(0)
+    hi = demos.reshape(-1, 2).max(0)
+    c, h = 0.5 * (lo + hi), 0.5 * (hi - lo) * (1.0 + margin)
+    return c - h, c + h
+
+
+def train_shapes(names: list[str], data: dict, config: LfdConfig, seed: int,
+                 log_every: int, log=print):
+    """Train all shapes in one vmapped program (:func:`agents.lfd.train_batched`), in compiled
+    chunks of ``log_every`` steps with a progress line after each. Returns ``(trainer,
+    result)`` with every leaf of ``result`` stacked over shapes."""
+    base = jax.random.PRNGKey(seed)
+    keys = jnp.stack([jax.random.fold_in(base, LASA_SHAPES.index(n)) for n in names])
+    t0 = time.perf_counter()
+
+    def progress(done, total, ls, state):
+        el = time.perf_counter() - t0
+        per = "  ".join(f"{name}={ls[i, -1]:.5f}" for i, name in enumerate(names[:6]))
+        more = f"  (+{len(names) - 6} more)" if len(names) > 6 else ""
+        stopped = int(np.sum(np.asarray(state.stopped)))
+        log(f"[{done:>5d}/{total}] {el:7.1f} s  mean loss {ls[:, -1].mean():.5f}  {per}{more}"
+            + (f"  early-stopped: {stopped}/{len(names)}" if stopped else ""), flush=True)
+
+    return train_batched(config, keys, data["demos"], data["velocities"],
+                         log_every=log_every, callback=progress)
+
+
+@functools.lru_cache(maxsize=8)
+def _rollout_program(field, num_steps: int, method: str):
+    """``(variables, x0 (S, n, 2), dt (S,)) -> (S, n, num_steps + 1, 2)``, jitted (cached)."""
+    return jax.jit(jax.vmap(lambda var, x0, dt: rollout(field, var, x0, num_steps, dt, method)))
+
+
+@functools.lru_cache(maxsize=8)
+def _velocity_program(field):
+    return jax.jit(jax.vmap(field.velocity))
+
+
+def straight_line(demos: np.ndarray) -> np.ndarray:
+    """Uniform-speed straight line from each demonstration's start to the goal (origin), as many
+    samples as the demonstration: ``(N, T, 2)``."""
+    T = demos.shape[1]
+    return demos[:, :1] * (1.0 - np.linspace(0.0, 1.0, T))[None, :, None]
+
+
+def metric_summary(rollouts: np.ndarray, demos: np.ndarray) -> dict:
+    per = [all_metrics(r, d) for r, d in zip(rollouts, demos, strict=True)]
+    keys = list(per[0])
+    return {"mean": {k: float(np.mean([p[k] for p in per])) for k in keys},
+            "per_demo": {k: [float(p[k]) for p in per] for k in keys}}
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--shapes", nargs="+", metavar="SHAPE", help="LASA shape names")
+    g.add_argument("--all", action="store_true", help="all 30 LASA shapes")
+    p.add_argument("--iterations", type=int, default=None,
+                   help="gradient steps (default: LfdConfig's 5000, with early stop)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default="results/lfd_lasa")
+    p.add_argument("--log-every", type=int, default=100, help="iterations per compiled chunk")
+    p.add_argument("--tiny", action="store_true", help="LfdConfig.tiny() (tests)")
+    p.add_argument("--check-starts", type=int, default=64)
+    p.add_argument("--check-steps", type=int, default=None,
+                   help="Euler steps of the convergence check (default 10·T)")
+    p.add_argument("--goal-radius", type=float, default=0.05,
+                   help="convergence radius of the check (normalised units)")
+    p.add_argument("--no-figures", action="store_true")
+    args = p.parse_args(argv)
+    try:
+        names = list(LASA_SHAPES) if args.all else canonical_shapes(args.shapes)
+    except ValueError as err:
+        p.error(str(err))
+    for flag in ("iterations", "log_every", "check_starts", "check_steps"):
+        val = getattr(args, flag)
+        if val is not None and val < 1:
+            p.error(f"--{flag.replace('_', '-')} must be >= 1, got {val}")
+    if not args.goal_radius > 0:
+        p.error(f"--goal-radius must be > 0, got {args.goal_radius}")
+
+    config = LfdConfig.tiny() if args.tiny else LfdConfig()
+    if args.iterations is not None:
+        config = config.replace(iterations=args.iterations)
+    os.makedirs(args.out, exist_ok=True)
+    print(f"training {len(names)} shape(s) on {jax.devices()[0].platform}: {', '.join(names)}; "
+          f"{config.iterations} iterations, seed {args.seed}", flush=True)
+
+    data = load_data(names)
+    t0 = time.perf_counter()
+    trainer, result = train_shapes(names, data, config, args.seed, args.log_every)
+    train_s = time.perf_counter() - t0
+    field, variables = trainer.field, result.variables
+    S, _, T, _ = data["demos"].shape
+
+    # Reproductions from each demonstration's start (explicit Euler, the demos' dt).
+    dts = jnp.asarray(data["dt"])
+    rollouts = np.asarray(_rollout_program(field, T - 1, config.integrator)(
+        variables, jnp.asarray(data["demos"][:, :, 0]), dts))
+
+    # Convergence check: random starts in the enlarged box, and speeds on a grid of it.
+    steps = args.check_steps or 10 * T
+    boxes = [box(d) for d in data["demos"]]
+    rng = np.random.default_rng(args.seed)
+    starts = np.stack([rng.uniform(lo, hi, (args.check_starts, 2)) for lo, hi in boxes])
+    final = np.asarray(_rollout_program(field, steps, config.integrator)(
+        variables, jnp.asarray(starts, jnp.float32), dts))[:, :, -1]
+    final_dist = np.linalg.norm(final, axis=-1)                      # (S, starts)
+    G = 41
+    grids = np.stack([np.stack(np.meshgrid(np.linspace(lo[0], hi[0], G),
+                                           np.linspace(lo[1], hi[1], G)), -1).reshape(-1, 2)
+                      for lo, hi in boxes]).astype(np.float32)      # (S, G·G, 2)
+    points = np.concatenate([grids, np.zeros((S, 1, 2), np.float32)], axis=1)  # + the goal
+    speeds = np.linalg.norm(np.asarray(_velocity_program(field)(variables, jnp.asarray(points))),
+                            axis=-1)
+    grid_speed, goal_speed = speeds[:, :-1], speeds[:, -1]
+    away = np.linalg.norm(grids, axis=-1) > args.goal_radius
+
+    record = {
+        "units": "normalised coordinates of mjxrmp.data.lasa (each shape's demonstrations span "
+                 "1 along each axis; goal at the origin); times in s",
+        "device": jax.devices()[0].device_kind,
+        "seed": args.seed,
+        "config": dataclasses.asdict(config),
+        "train_seconds": train_s,
+        "rollout": f"explicit {config.integrator} with each shape's dt, from each "
+                   "demonstration's first sample, T samples",
+        "baseline": "straight line from the demonstration's start to the goal at uniform speed "
+                    "over the demonstration's duration",
+        "convergence_check": {"starts": args.check_starts, "steps": steps,
+                              "box": f"demonstrations' bounding box enlarged by "
+                                     f"{BOX_MARGIN:.0%}",
+                              "goal_radius": args.goal_radius, "grid": f"{G}x{G}"},
+        "shapes": {},
+    }
+    losses = np.asarray(result.losses)
+    for i, name in enumerate(names):
+        demos = data["demos"][i]
+        summary = metric_summary(rollouts[i], demos)
+        record["shapes"][name] = {
+            "dt": float(data["dt"][i]),
+            "metrics": summary["mean"],
+            "per_demo": summary["per_demo"],
+            "baseline_straight_line": metric_summary(straight_line(demos), demos)["mean"],
+            "final_loss": float(losses[i, -1]),
+            "best_loss": float(result.best_loss[i]),
+            "best_step": int(result.best_step[i]),
+            "stopped_early": bool(result.stopped[i]),
+            "convergence": {
+                "fraction_within_radius": float(np.mean(final_dist[i] < args.goal_radius)),
+                "max_final_distance": float(final_dist[i].max()),
+                "mean_final_distance": float(final_dist[i].mean()),
+                "min_speed_away_from_goal": float(grid_speed[i][away[i]].min()),
+                "speed_at_goal": float(goal_speed[i]),
+            },
+        }
+        np.savez(os.path.join(args.out, f"{name}.npz"), demos=demos, rollouts=rollouts[i],
+                 dt=np.float32(data["dt"][i]), losses=losses[i].astype(np.float32))
+        m, b = summary["mean"], record["shapes"][name]["baseline_straight_line"]
+        c = record["shapes"][name]["convergence"]
+        print(f"{name:>16s}: RMSE {m['rmse']:.4f} (straight line {b['rmse']:.4f})  "
+              f"DTW/len {m['dtw_normalized']:.4f}  Fréchet {m['frechet']:.4f}  "
+              f"area {m['swept_error_area']:.4f}  final {m['final_point_error']:.4f}  | "
+              f"converged {c['fraction_within_radius']:.0%} (max dist "
+              f"{c['max_final_distance']:.4f})  min speed {c['min_speed_away_from_goal']:.2e}",
+              flush=True)
+    keys = list(record["shapes"][names[0]]["metrics"])
+    record["mean_over_shapes"] = {
+        k: float(np.mean([record["shapes"][n]["metrics"][k] for n in names])) for k in keys}
+    with open(os.path.join(args.out, "metrics.json"), "w") as f:
+        json.dump(record, f, indent=1)
+
+    if not args.no_figures:
+        plot_all(names, data, rollouts, field, variables, boxes, args.out)
+    print(f"wrote {args.out}/ ({train_s:.0f} s training)")
+    return record
+
+
+def plot_all(names, data, rollouts, field, variables, boxes, out: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    G = 80
+    pad = [box(d, 0.5) for d in data["demos"]]                      # figure extent
+    grids = np.stack([np.stack(np.meshgrid(np.linspace(lo[0], hi[0], G),
+                                           np.linspace(lo[1], hi[1], G)), -1)
+                      for lo, hi in pad]).astype(np.float32)
+    vel = np.asarray(_velocity_program(field)(variables, jnp.asarray(grids)))
+    pot = np.asarray(jax.jit(jax.vmap(field.potential))(variables, jnp.asarray(grids)))
+    for i, name in enumerate(names):
+        X, Y = grids[i, ..., 0], grids[i, ..., 1]
+        demos = data["demos"][i]
+
+        fig, ax = plt.subplots(figsize=(5, 5))
+        speed = np.linalg.norm(vel[i], axis=-1)
+        ax.streamplot(X, Y, vel[i, ..., 0], vel[i, ..., 1], color=speed, cmap="viridis",
+                      density=1.4, linewidth=0.7, arrowsize=0.8)
+        for k, d in enumerate(demos):
+            ax.plot(d[:, 0], d[:, 1], color="k", lw=2.2, label="demonstrations" if k == 0
+                    else None)
+            ax.plot(rollouts[i, k, :, 0], rollouts[i, k, :, 1], color="r", lw=1.4, ls="--",
+                    label="reproductions" if k == 0 else None)
+        ax.plot(0, 0, "x", color="limegreen", ms=12, mew=3, label="goal")
+        ax.set_xlim(X.min(), X.max())
+        ax.set_ylim(Y.min(), Y.max())
+        ax.set_aspect("equal")
+        ax.set_title(f"{name}: learned field (cf. Fig 4.4)")
+        ax.legend(loc="lower left", fontsize=7)
+        fig.tight_layout()
+        fig.savefig(os.path.join(out, f"{name}_field.png"), dpi=90)
+        plt.close(fig)
+
+        fig, ax = plt.subplots(figsize=(5, 5))
+        # Equally spaced latent radii ‖φ(x) − φ(0)‖ up to 1.3× the largest on the demos.
+        r_demo = np.sqrt(2.0 * np.asarray(field.potential(
+            jax.tree.map(lambda a, i=i: a[i], variables), jnp.asarray(demos))).max())
+        levels = 0.5 * np.linspace(0.0, 1.3 * r_demo, 16)[1:] ** 2
+        ax.contour(X, Y, pot[i], levels=levels, cmap="viridis", linewidths=1.0)
+        for d in demos:
+            ax.plot(d[:, 0], d[:, 1], color="k", lw=1.8)
+        ax.plot(0, 0, "x", color="limegreen", ms=12, mew=3)
+        ax.set_aspect("equal")
+        ax.set_title(f"{name}: Φ(x) = ½‖φ(x) − φ(0)‖² (cf. Fig 4.7)")
+        fig.tight_layout()
+        fig.savefig(os.path.join(out, f"{name}_potential.png"), dpi=90)
+        plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()
