@@ -140,24 +140,11 @@ class Metadata(Mapping[str, Any]):
         return Metadata({**self._data, **entries})
 
 
-@dataclasses.dataclass(frozen=True)
-class Dataset:
-    """``N`` transitions as flat arrays plus static JSON metadata (see the module docstring).
-
-    A pytree whose leaves are the seven arrays of :data:`FIELDS` (NumPy or JAX arrays); the
-    ``metadata`` is static auxiliary data. Build one with :func:`create` (coerces flag and id
-    dtypes, validates) or :func:`from_transitions`; the plain constructor does not validate (it
-    also runs inside JAX transformations, on tracers).
-    """
-
-    observations: Any
-    actions: Any
-    rewards: Any
-    next_observations: Any
-    terminals: Any
-    timeouts: Any
-    episode_ids: Any
-    metadata: Metadata = dataclasses.field(default_factory=Metadata)
+class TransitionTable:
+    """What :class:`Dataset` and :class:`offline.scenarios.RewardData` share: ``metadata``
+    coerced to :class:`Metadata`, ``size`` / ``len`` (rows ``N``), ``observation_size`` and
+    ``replace``. Subclasses are frozen dataclasses with ``rewards``, ``observations`` and
+    ``metadata`` fields."""
 
     def __post_init__(self) -> None:
         if not isinstance(self.metadata, Metadata):
@@ -175,6 +162,30 @@ class Dataset:
     def observation_size(self) -> int:
         return int(self.observations.shape[-1])
 
+    def replace(self, **changes: Any):
+        """A copy with some fields (or ``metadata``) replaced; not validated."""
+        return dataclasses.replace(self, **changes)
+
+
+@dataclasses.dataclass(frozen=True)
+class Dataset(TransitionTable):
+    """``N`` transitions as flat arrays plus static JSON metadata (see the module docstring).
+
+    A pytree whose leaves are the seven arrays of :data:`FIELDS` (NumPy or JAX arrays); the
+    ``metadata`` is static auxiliary data. Build one with :func:`create` (coerces flag and id
+    dtypes, validates) or :func:`from_transitions`; the plain constructor does not validate (it
+    also runs inside JAX transformations, on tracers).
+    """
+
+    observations: Any
+    actions: Any
+    rewards: Any
+    next_observations: Any
+    terminals: Any
+    timeouts: Any
+    episode_ids: Any
+    metadata: Metadata = dataclasses.field(default_factory=Metadata)
+
     @property
     def action_size(self) -> int:
         return int(self.actions.shape[-1])
@@ -182,10 +193,6 @@ class Dataset:
     def arrays(self) -> dict[str, Any]:
         """The array fields by name, in :data:`FIELDS` order."""
         return {name: getattr(self, name) for name in FIELDS}
-
-    def replace(self, **changes: Any) -> Dataset:
-        """A copy with some fields (or ``metadata``) replaced; not validated."""
-        return dataclasses.replace(self, **changes)
 
 
 jax.tree_util.register_dataclass(Dataset, data_fields=list(FIELDS), meta_fields=["metadata"])
@@ -763,6 +770,7 @@ __all__ = [
     "DatasetFileError",
     "EpisodeStats",
     "Metadata",
+    "TransitionTable",
     "concatenate",
     "create",
     "episode_statistics",

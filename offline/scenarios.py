@@ -76,7 +76,7 @@ RL_SAMPLE_FRACTION = 0.5
 
 
 @dataclasses.dataclass(frozen=True)
-class RewardData:
+class RewardData(odata.TransitionTable):
     """Reward data ``D_R = {(s, r, s')}`` of PLfO: no actions.
 
     ``observations`` / ``next_observations`` ``(N, O)``, ``rewards`` ``(N,)``, ``terminals`` /
@@ -90,24 +90,6 @@ class RewardData:
     timeouts: Any
     episode_ids: Any
     metadata: odata.Metadata = dataclasses.field(default_factory=odata.Metadata)
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.metadata, odata.Metadata):
-            object.__setattr__(self, "metadata", odata.Metadata(self.metadata))
-
-    @property
-    def size(self) -> int:
-        return int(self.rewards.shape[0])
-
-    def __len__(self) -> int:
-        return self.size
-
-    @property
-    def observation_size(self) -> int:
-        return int(self.observations.shape[-1])
-
-    def replace(self, **changes: Any) -> RewardData:
-        return dataclasses.replace(self, **changes)
 
     def as_dataset(self) -> odata.Dataset:
         """A :class:`~offline.data.Dataset` with zero-width actions ``(N, 0)`` (for files)."""
