@@ -62,7 +62,10 @@ class PPOConfig:
     """PPO hyper-parameters (hashable; validated on construction).
 
     Batch per iteration = ``num_envs × rollout_length``; it must split into ``num_minibatches``
-    equal minibatches. ``max_grad_norm=None`` disables global-norm clipping. ``episode_length``
+    equal minibatches. Each epoch shuffles the batch within ``shuffle_blocks`` equal blocks of
+    environments and gives every minibatch the same number of samples from each block
+    (``None``: one block per device of the mesh, so that shuffling never moves data between
+    devices; one block without a mesh — a plain shuffle). ``max_grad_norm=None`` disables global-norm clipping. ``episode_length``
     (``None``: the environment's ``horizon``) is used when :func:`make_train` wraps the env.
     """
 
@@ -88,6 +91,7 @@ class PPOConfig:
     value_activation: str = "tanh"
     episode_length: int | None = None
     normalize_observations: bool = False
+    shuffle_blocks: int | None = None
 
     def __post_init__(self):
         def bad(name, why):
@@ -130,6 +134,13 @@ class PPOConfig:
         if self.batch_size % self.num_minibatches:
             bad("num_minibatches",
                 f"must divide the batch num_envs*rollout_length={self.batch_size}")
+        if self.shuffle_blocks is not None:
+            b = self.shuffle_blocks
+            if not (isinstance(b, int) and not isinstance(b, bool) and b >= 1
+                    and self.num_envs % b == 0 and self.minibatch_size % b == 0):
+                bad("shuffle_blocks", f"must be None or a positive integer dividing num_envs="
+                                      f"{self.num_envs} and the minibatch size "
+                                      f"{self.minibatch_size}")
 
     @property
     def batch_size(self) -> int:
@@ -417,6 +428,9 @@ def make_trainer(
             if n % mesh.size:
                 raise ValueError(f"PPOConfig {name}={n} must be divisible by the mesh size "
                                  f"{mesh.size} to shard the environment batch")
+        if config.shuffle_blocks is not None and config.shuffle_blocks % mesh.size:
+            raise ValueError(f"PPOConfig shuffle_blocks={config.shuffle_blocks} must be a "
+                             f"multiple of the mesh size {mesh.size}")
     obs_size = int(env.observation_size)
     action_size = int(env.action_size)
     batched = env if isinstance(env, AutoResetWrapper) else wrap(env, config.episode_length)
@@ -433,6 +447,9 @@ def make_trainer(
     if config.max_grad_norm is not None:
         tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), tx)
     n_envs, n_mb, mb_size = config.num_envs, config.num_minibatches, config.minibatch_size
+    blocks = config.shuffle_blocks or (1 if mesh is None else mesh.size)
+    block_len = config.batch_size // blocks
+    constrain_blocks = batch_axis_sharding(mesh, blocks)
     constrain = batch_axis_sharding(mesh, n_envs)
     constrain_mb = batch_axis_sharding(mesh, mb_size)
     use_norm = config.normalize_observations
@@ -502,11 +519,17 @@ def make_trainer(
         params = optax.apply_updates(params, updates)
         return (params, opt_state, stats), metrics
 
+    def minibatches(x, perm):
+        # x: (blocks, block_len, ...) -> (n_mb, mb_size, ...), block-major inside a minibatch
+        x = jax.vmap(lambda xb, pb: xb[pb])(x, perm)
+        x = x.reshape((blocks, n_mb, mb_size // blocks, *x.shape[2:]))
+        return jnp.swapaxes(x, 0, 1).reshape((n_mb, mb_size, *x.shape[3:]))
+
     def update_epoch(carry, key):
         params, opt_state, stats, flat = carry
-        perm = jax.random.permutation(key, config.batch_size)
-        mbs = jax.tree.map(lambda x: x[perm].reshape((n_mb, mb_size, *x.shape[1:])), flat)
-        mbs = constrain_mb(mbs, 1)
+        perm = jax.vmap(lambda k: jax.random.permutation(k, block_len))(
+            jax.random.split(key, blocks))
+        mbs = constrain_mb(jax.tree.map(lambda x: minibatches(x, perm), flat), 1)
         (params, opt_state, _), metrics = jax.lax.scan(
             update_minibatch, (params, opt_state, stats), mbs)
         return (params, opt_state, stats, flat), metrics
@@ -518,7 +541,10 @@ def make_trainer(
                        config.gamma, config.gae_lambda)
         flat = {"obs": tr.obs, "actions": tr.actions, "log_probs": tr.log_probs,
                 "advantages": adv, "returns": ret}
-        flat = jax.tree.map(lambda x: x.reshape((config.batch_size, *x.shape[2:])), flat)
+        # (T, N, ...) -> (blocks, N/blocks·T, ...): environment-major, so that each block
+        # holds whole environments and stays on the device that stepped them
+        flat = constrain_blocks(jax.tree.map(
+            lambda x: jnp.swapaxes(x, 0, 1).reshape((blocks, block_len, *x.shape[2:])), flat))
         (params, opt_state, _, _), upd = jax.lax.scan(
             update_epoch, (ts.params, ts.opt_state, stats, flat),
             jax.random.split(key, config.update_epochs),

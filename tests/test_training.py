@@ -168,6 +168,7 @@ def test_train_cli_bad_names(capsys):
 
 
 SHARDED = textwrap.dedent("""
+    import dataclasses
     import jax, numpy as np
     import envs
     from agents.ppo import PPOConfig, make_trainer
@@ -178,8 +179,12 @@ SHARDED = textwrap.dedent("""
                     episode_length=6, normalize_observations=True)
     keys = jax.numpy.stack([jax.random.PRNGKey(1), jax.random.PRNGKey(2)])
     out = {}
-    for name, mesh in (("single", None), ("sharded", make_mesh(4))):
-        tr = make_trainer(envs.make("point2d"), config=cfg, mesh=mesh)
+    # the sharded run shuffles within one block per device (the default); the single-device
+    # run is told to use the same 4 blocks, so both compute the same numbers
+    runs = (("single", None, dataclasses.replace(cfg, shuffle_blocks=4)),
+            ("sharded", make_mesh(4), cfg))
+    for name, mesh, c in runs:
+        tr = make_trainer(envs.make("point2d"), config=c, mesh=mesh)
         state = jax.jit(jax.vmap(tr.init))(keys)
         state, metrics = jax.jit(jax.vmap(tr.run, in_axes=(0, None)), static_argnums=1)(
             state, 3)
