@@ -6,7 +6,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from offline import bc, data as odata, scenarios
+from offline import bc, scenarios
+from offline import data as odata
 from offline.inverse_dynamics import (
     InverseDynamicsConfig,
     label_actions,
@@ -114,7 +115,7 @@ def test_bc_configs_and_data_selection(expert_data, random_data):
         bc.BCConfig(learning_rate=-1.0)
     with pytest.raises(ValueError, match="data"):
         bc.BCConfig(data="expert")
-    with pytest.raises(ValueError, match="bc.data"):
+    with pytest.raises(ValueError, match=r"bc\.data"):
         bc.BCOConfig(bc=bc.BCConfig(data="reward_episodes"))
     with pytest.raises(ValueError, match="config"):
         bc.make_train(expert_data, InverseDynamicsConfig())
@@ -170,7 +171,7 @@ def test_inverse_dynamics_labels_the_linear_system(bco_setup, expert_data):
 def test_bco_recovers_the_expert_from_observations_only(bco_setup, test_states):
     dynamics, rd, config = bco_setup
     trainer = bc.make_train(dynamics, config, reward_data=rd)
-    state, metrics = jax.jit(trainer.train)(jax.random.PRNGKey(0))
+    state, _ = jax.jit(trainer.train)(jax.random.PRNGKey(0))
     assert set(state.params) == {"actor", "inverse"}
     truth = expert_action(test_states.astype(np.float64))
     err = np.abs(np.asarray(trainer.act(actor_params(state), test_states)) - truth)
