@@ -78,7 +78,7 @@ def test_bc_recovers_the_mapping_and_a_random_actor_does_not(bc_trainer, test_st
     truth = expert_action(test_states.astype(np.float64))
     err = np.abs(np.asarray(bc_trainer.act(actor_params(state), test_states)) - truth)
     assert err.max() < 0.1 * LIMIT, err.max()
-    untrained = bc_trainer.init(jax.random.PRNGKey(0))
+    untrained = jax.jit(bc_trainer.init)(jax.random.PRNGKey(0))
     err0 = np.abs(np.asarray(bc_trainer.act(actor_params(untrained), test_states)) - truth)
     assert err0.max() > 0.1 * LIMIT and err0.mean() > 5 * err.mean()
     # act accepts a single observation and returns environment units
@@ -88,7 +88,8 @@ def test_bc_recovers_the_mapping_and_a_random_actor_does_not(bc_trainer, test_st
 
 def test_run_split_equals_one_call_and_vmap_equals_separate_runs(bc_trainer):
     run = jax.jit(bc_trainer.run, static_argnums=1)
-    s0 = bc_trainer.init(jax.random.PRNGKey(3))
+    init = jax.jit(bc_trainer.init)
+    s0 = init(jax.random.PRNGKey(3))
     whole, m_whole = run(s0, 20)
     part, m1 = run(s0, 10)
     part, m2 = run(part, 10)
@@ -96,13 +97,10 @@ def test_run_split_equals_one_call_and_vmap_equals_separate_runs(bc_trainer):
     np.testing.assert_array_equal(m_whole["bc_loss"],
                                   np.concatenate([m1["bc_loss"], m2["bc_loss"]]))
 
-    def short(key):
-        return run(bc_trainer.init(key), 20)
-
     keys = jax.random.split(jax.random.PRNGKey(4), 2)
-    both, _ = jax.jit(jax.vmap(short))(keys)
+    both, _ = jax.jit(jax.vmap(lambda k: bc_trainer.run(bc_trainer.init(k), 20)))(keys)
     for i in range(2):
-        single, _ = short(keys[i])
+        single, _ = run(init(keys[i]), 20)
         jax.tree.map(lambda a, b, i=i: np.testing.assert_allclose(a[i], b, rtol=1e-5,
                                                                   atol=1e-6),
                      both.params, single.params)
