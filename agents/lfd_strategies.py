@@ -1,0 +1,605 @@
+"""Learning RMP² policies for the Franka from demonstrations: the strategies of thesis chapter 5.
+
+**Policy class** (§5.3.1). ``K`` learned leaves, each a subtask map, a latent potential and a
+latent Riemannian metric ``(ψ_k, Φ̄, G_k)``:
+
+* ``ψ_k(q) = φ_k(x_k(q)) − φ_k(0)`` with ``x_k(q) = FK_k(q) − g_k`` the k-th hand control point
+  relative to its goal (§5.2.3; :func:`mjxrmp.data.franka_demos.hand_points`) — or, for
+  configuration-space regression, ``x(q) = q − q_g`` — and ``φ_k`` a Euclideanizing flow
+  (§4.2.2, eqs 4.4–4.5; :class:`mjxrmp.flows.EuclideanizingFlow`);
+* ``Φ̄(y) = ½γ‖y‖²`` (§5.3.1, "a simple pre-specified potential"; ``γ`` = ``latent_gain``);
+* ``G_k(y)`` a Cholesky metric network on the latent space (§4.3.1, §5.2.2;
+  :class:`mjxrmp.learned.CholeskyMetric`, exactly ``I`` at initialisation).
+
+Leaf k is the velocity-form RMP ``(M_k, v_k) = (G_k, −G_k⁻¹∇Φ̄)`` (§5.3.1), i.e. the natural pair
+``(G_k, p_k = −γ y_k)``; the configuration-space policy is the velocity-form RMP² of eq 5.1,
+
+    q̇ = π_θ(q) = argmin_v Σ_k ½‖J_k v − v_k‖²_{G_k} = (Σ_k J_kᵀ G_k J_k + εI)⁻¹ Σ_k J_kᵀ p_k,   (*)
+
+``J_k = ∂ψ_k/∂q``, with the small diagonal offset ``ε`` (``regularization``, 0.02 as in §5.3.2) that
+keeps the root metric non-singular (three points on the rigid hand constrain at most 6 of the 7
+joints; one control point only 3). **Stability for every θ:** ``V(q) = Σ_k Φ̄(ψ_k(q))`` has
+``V̇ = (Σ J_kᵀ∇Φ̄_k)ᵀ q̇ = −fᵀ(M + εI)⁻¹f ≤ 0`` with ``f = Σ J_kᵀ p_k``; each ``ψ_k`` is a
+diffeomorphism of the control point with ``ψ_k = 0`` only at its goal.
+
+**Strategies** (:data:`STRATEGIES`), each a two-stage fit (ANCHOR_FACTS §6): stage 1 trains the
+flows with the latent metrics held at ``I``; stage 2 trains the metrics with the flows frozen.
+Every stage is one ``lax.scan`` of full-batch Adam steps (weight decay ``1e-8`` as an L2 term,
+§5.3.2), the whole fit one jittable function ``train(key, samples)`` that ``vmap``s over seeds
+and over demonstration subsets (the per-sample weights ``samples.w`` select the demonstrations,
+so leave-one-out folds share one array and differ only in ``w``). Losses are SmoothL1 (``β``)
+averaged over coordinates, leaves and (weighted) samples.
+
+* ``"cspace"`` — configuration-space regression (§5.1 eq 5.2): one leaf on ``x = q − q_g``
+  (``J = ∂ψ/∂q`` square), loss ``SmoothL1(π_θ(q) − q̇_demo)`` — a *stable* flow DS in
+  configuration space (ANCHOR_FACTS §6) rather than an unconstrained regressor, so that its
+  rollouts can be compared with the others'.
+* ``"independent"`` — independent per-subtask learning (§5.1 eq 5.3, §5.2): each control point's
+  leaf is fitted on its own, to reproduce that point's demonstrated velocity in its task space,
+  ``ẋ_k = J_{φ_k}⁻¹ G_k⁻¹(−∇Φ̄(y_k))`` (the single-leaf solution of eq 5.1; eq 5.6 in the latent
+  coordinates); the leaves meet only at execution, through (*). The fits are ``vmap``-ped over the
+  leaves, so they are exactly independent.
+* ``"joint"`` — joint learning through the velocity-form RMP² (§5.1 eq 5.4, §5.3, eq 5.8):
+  ``mean_k SmoothL1(J_{FK,k}(π_θ(q) − q̇_demo))``, differentiating through the resolve (*).
+  ``J_{FK,k}`` is the task-space Jacobian of the control point (so errors are control-point
+  velocities in m/s; eq 5.4 writes the subtask Jacobian, which would make the weighting depend
+  on the learned flow).
+* ``"single_link"`` — the single-link baseline of §5.3.2: only the centre control point, learned
+  independently.
+
+**Execution** (:func:`policy_velocity`, :func:`rollout`): (*) evaluated by
+:func:`mjxrmp.rmp2.pullback_velocity` (Jacobians by forward-mode autodiff through FK and the
+flows), optionally with the hand-designed joint-limit and collision leaves of
+:mod:`mjxrmp.policies` added "at execution time" (§5.2.3). Those are acceleration-form leaves
+``(M_h(x, ẋ), f_h = M_h a_h(x, ẋ))``; in the velocity form each contributes its metric at the
+current leaf velocity ``ẋ = J q̇_prev`` (the previous command) and the desired velocity
+``h·a_h(x, 0)`` — one control step ``h`` of its damping-free (repulsive) acceleration:
+``p_h = M_h(x, ẋ)·h·a_h(x, 0)``. The damping terms of those leaves are not needed in a
+first-order system (velocities do not accumulate), and their stiffness would make an explicit
+step unstable. Rollouts integrate ``q ← q + dt·clip(q̇, ±q̇_max)`` in one ``lax.scan``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from mjxrmp import policies, rmp2
+from mjxrmp.data.franka_demos import StackedDemos, hand_points
+from mjxrmp.flows import CONSTANTS, EuclideanizingFlow
+from mjxrmp.geometry import Obstacles
+from mjxrmp.learned import CholeskyMetric
+from mjxrmp.leaves import CollisionParams, JointLimitParams
+from mjxrmp.rmp import RMP
+from mjxrmp.robots import franka
+
+STRATEGIES = ("cspace", "independent", "joint", "single_link")
+#: Strategies fitted leaf by leaf (eq 5.3) rather than through the resolve (eqs 5.2, 5.4).
+INDEPENDENT_STRATEGIES = ("independent", "single_link")
+DOF = franka.FRANKA.dof
+
+__all__ = [
+    "INDEPENDENT_STRATEGIES",
+    "STRATEGIES",
+    "Samples",
+    "StrategyConfig",
+    "StrategyResult",
+    "execution_config",
+    "fold_weights",
+    "init_params",
+    "latent_leaves",
+    "make_samples",
+    "make_train",
+    "policy_velocity",
+    "resolve_velocity",
+    "rollout",
+    "strategy_loss",
+    "task_coordinates",
+    "training_velocity",
+]
+
+
+def _check_int(value: Any, name: str, minimum: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"StrategyConfig.{name} must be an int >= {minimum}, got {value!r}")
+
+
+def _check_float(value: Any, name: str, allow_zero: bool = False) -> None:
+    ok = isinstance(value, (int, float, np.floating)) and not isinstance(value, bool) \
+        and math.isfinite(value) and (value >= 0 if allow_zero else value > 0)
+    if not ok:
+        raise ValueError(f"StrategyConfig.{name} must be a finite number "
+                         f"{'>= 0' if allow_zero else '> 0'}, got {value!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class StrategyConfig:
+    """One strategy's model and training settings (module docstring).
+
+    Defaults are the thesis' (§5.3.2) and ANCHOR_FACTS §6 values: flows of 10 coupling layers with
+    200 random Fourier features of length-scale 0.45, Cholesky metrics ``(128, 64)``, Adam with
+    learning rate ``1e-4`` and weight decay ``1e-8``, ``ε = 0.02``; iteration counts are
+    configurable (``flow_iterations`` for stage 1, ``metric_iterations`` for stage 2, which may be
+    0); ``batch_size`` (``None``: full batch, the thesis) draws a minibatch per step.
+    :meth:`cpu` is a preset that finishes in minutes on a 2-core CPU; :meth:`tiny` is for
+    tests. ``point`` is the control point used by ``"single_link"`` (0: the centre).
+    """
+
+    strategy: str = "joint"
+    num_layers: int = 10
+    num_features: int = 200
+    length_scale: float = 0.45
+    metric_hidden: tuple[int, ...] = (128, 64)
+    latent_gain: float = 1.0
+    default_weight: float = 10.0
+    default_gain: float = 1.0
+    regularization: float = 0.02
+    smooth_l1_beta: float = 1.0
+    learning_rate: float = 1e-4
+    metric_learning_rate: float = 1e-4
+    weight_decay: float = 1e-8
+    max_grad_norm: float | None = None
+    batch_size: int | None = None
+    flow_iterations: int = 5000
+    metric_iterations: int = 5000
+    point: int = 0
+
+    def __post_init__(self) -> None:
+        if self.strategy not in STRATEGIES:
+            raise ValueError(f"StrategyConfig.strategy must be one of {STRATEGIES}, "
+                             f"got {self.strategy!r}")
+        _check_int(self.num_layers, "num_layers", 1)
+        _check_int(self.num_features, "num_features", 1)
+        _check_float(self.length_scale, "length_scale")
+        if not isinstance(self.metric_hidden, tuple):
+            object.__setattr__(self, "metric_hidden", tuple(self.metric_hidden))
+        for h in self.metric_hidden:
+            _check_int(h, "metric_hidden entries", 1)
+        _check_float(self.default_weight, "default_weight", allow_zero=True)
+        for name in ("latent_gain", "default_gain", "regularization", "smooth_l1_beta",
+                     "learning_rate", "metric_learning_rate"):
+            _check_float(getattr(self, name), name)
+        _check_float(self.weight_decay, "weight_decay", allow_zero=True)
+        if self.max_grad_norm is not None:
+            _check_float(self.max_grad_norm, "max_grad_norm")
+        if self.batch_size is not None:
+            _check_int(self.batch_size, "batch_size", 1)
+        _check_int(self.flow_iterations, "flow_iterations", 1)
+        _check_int(self.metric_iterations, "metric_iterations", 0)
+        _check_int(self.point, "point", 0)
+        if self.point > 2:
+            raise ValueError(f"StrategyConfig.point must be 0, 1 or 2 (a hand control point), "
+                             f"got {self.point!r}")
+
+    @classmethod
+    def cpu(cls, strategy: str = "joint", **overrides: Any) -> StrategyConfig:
+        """CPU preset: flows of 4 layers × 32 features, metrics ``(32, 32)``, minibatches of 256,
+        400 + 200 iterations at learning rates ``5e-3`` / ``2e-3`` (the thesis' ``1e-4`` needs
+        thousands of iterations), SmoothL1 ``β = 0.1`` (velocities are ~0.1 m/s, so ``β = 1``
+        is a plain squared loss), gradient-norm clip 1."""
+        base: dict[str, Any] = dict(num_layers=4, num_features=32, metric_hidden=(32, 32),
+                                    learning_rate=5e-3, metric_learning_rate=2e-3,
+                                    smooth_l1_beta=0.1, max_grad_norm=1.0, batch_size=256,
+                                    flow_iterations=400, metric_iterations=200)
+        base.update(overrides)
+        return cls(strategy=strategy, **base)
+
+    @classmethod
+    def tiny(cls, strategy: str = "joint", **overrides: Any) -> StrategyConfig:
+        """Seconds-scale preset for tests: 2 layers × 8 features, metric ``(8,)``, 30 + 10
+        iterations at learning rate ``1e-2``."""
+        base: dict[str, Any] = dict(num_layers=2, num_features=8, metric_hidden=(8,),
+                                    learning_rate=1e-2, metric_learning_rate=1e-2,
+                                    smooth_l1_beta=0.1, flow_iterations=30, metric_iterations=10)
+        base.update(overrides)
+        return cls(strategy=strategy, **base)
+
+    def replace(self, **changes: Any) -> StrategyConfig:
+        return dataclasses.replace(self, **changes)
+
+    @property
+    def num_leaves(self) -> int:
+        """``K``: 3 hand control points, or 1 (configuration space / single link)."""
+        return 1 if self.strategy in ("cspace", "single_link") else 3
+
+    @property
+    def leaf_dim(self) -> int:
+        """``m``: 7 for configuration-space regression, else 3."""
+        return DOF if self.strategy == "cspace" else 3
+
+    @property
+    def flow(self) -> EuclideanizingFlow:
+        return EuclideanizingFlow(dim=self.leaf_dim, num_layers=self.num_layers,
+                                  num_features=self.num_features,
+                                  length_scale=self.length_scale)
+
+    @property
+    def metric(self) -> CholeskyMetric:
+        return CholeskyMetric(dim=self.leaf_dim, hidden_sizes=self.metric_hidden)
+
+
+# ---------------------------------------------------------------------------------------------
+# Data
+# ---------------------------------------------------------------------------------------------
+
+
+class Samples(NamedTuple):
+    """Training pairs, one row per demonstration sample (a pytree; ``S`` samples):
+    ``x (S, K, m)`` task coordinates relative to the goal, ``J (S, K, m, 7)`` their Jacobians
+    ``∂x/∂q``, ``xd (S, K, m)`` demonstrated task velocities, ``qd (S, 7)`` demonstrated joint
+    velocities, ``w (S,)`` sample weights (0: not used)."""
+
+    x: jax.Array
+    J: jax.Array
+    xd: jax.Array
+    qd: jax.Array
+    w: jax.Array
+
+
+def task_coordinates(strategy: str, point: int, q: jax.Array, goals: jax.Array,
+                     q_goal: jax.Array) -> jax.Array:
+    """``x(q) (K, m)``: control points minus their goals (§5.2.3, ``FK_k − g_k``) for
+    ``"joint"``/``"independent"``, the ``point``-th one for ``"single_link"``, ``q − q_g``
+    for ``"cspace"``. ``goals (3, 3)``, ``q_goal (7,)``, one configuration ``q (7,)``."""
+    if strategy == "cspace":
+        return (q - q_goal)[None]
+    x = hand_points(q) - goals
+    return x[point:point + 1] if strategy == "single_link" else x
+
+
+def make_samples(config: StrategyConfig, demos: StackedDemos) -> Samples:
+    """:class:`Samples` of every (padded) sample of ``demos`` with ``w = mask`` (fold weights
+    come from :func:`fold_weights`). Jacobians by forward-mode autodiff of the kinematics."""
+    s, k = config.strategy, config.point
+    N, T = demos.mask.shape
+
+    def one(q, qd, pv, g, qg):
+        fn = lambda q_: task_coordinates(s, k, q_, g, qg)  # noqa: E731
+        x = fn(q)
+        J = jax.jacfwd(fn)(q)
+        xd = qd[None] if s == "cspace" else pv[k:k + 1] if s == "single_link" else pv
+        return x, J, xd
+
+    rep = lambda a: jnp.repeat(a[:, None], T, axis=1).reshape((N * T, *a.shape[1:]))  # noqa: E731
+    flat = lambda a: a.reshape((N * T, *a.shape[2:]))  # noqa: E731
+    x, J, xd = jax.jit(jax.vmap(one))(flat(demos.q), flat(demos.qd),
+                                      flat(demos.point_velocities), rep(demos.goals),
+                                      rep(demos.q_goal))
+    return Samples(x=x, J=J, xd=xd, qd=flat(demos.qd), w=flat(demos.mask))
+
+
+def fold_weights(mask: jax.Array, train: jax.Array) -> jax.Array:
+    """Sample weights ``(N·T,)`` using the demonstrations with ``train (N,)`` true:
+    ``mask (N, T) · train[:, None]``, flattened like :func:`make_samples`."""
+    mask = jnp.asarray(mask)
+    train = jnp.asarray(train, mask.dtype)
+    if train.shape != mask.shape[:1]:
+        raise ValueError(f"train must have shape ({mask.shape[0]},), got {train.shape}")
+    return (mask * train[:, None]).reshape(-1)
+
+
+# ---------------------------------------------------------------------------------------------
+# The policy
+# ---------------------------------------------------------------------------------------------
+
+
+class StrategyResult(NamedTuple):
+    """A fitted policy: ``params = {"flow", "metric"}`` and ``constants`` (the flows' fixed
+    random features), every leaf stacked over the ``K`` leaves; the loss of every iteration of
+    both stages, ``flow_losses (flow_iterations,)`` and ``metric_losses (metric_iterations,)``
+    (for ``"independent"`` the mean over leaves)."""
+
+    params: Any
+    constants: Any
+    flow_losses: jax.Array
+    metric_losses: jax.Array
+
+
+def init_params(config: StrategyConfig, key: jax.Array) -> tuple[Any, Any]:
+    """Initial ``(params, constants)`` of the ``K`` leaves (stacked): flows at the identity,
+    metrics at ``I`` (§4.2.2, §4.3.1)."""
+    m = config.leaf_dim
+
+    def one(k):
+        k_flow, k_metric = jax.random.split(k)
+        fv = config.flow.init(k_flow, jnp.zeros((m,), jnp.float32))
+        mp = config.metric.init(k_metric, jnp.zeros((m,), jnp.float32))["params"]
+        return {"flow": fv["params"], "metric": mp}, fv[CONSTANTS]
+
+    return jax.vmap(one)(jax.random.split(key, config.num_leaves))
+
+
+def latent_leaves(config: StrategyConfig, params: Any, constants: Any, x: jax.Array
+                  ) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Per leaf ``y_k = φ_k(x_k) − φ_k(0)``, ``J_{φ_k}(x_k)`` and ``G_k(y_k)`` for one sample
+    ``x (K, m)``: ``(y (K, m), Jφ (K, m, m), G (K, m, m))`` (§4.2, §5.3.1)."""
+    flow, metric = config.flow, config.metric
+
+    def one(fp, fc, mp, xk):
+        fv = {"params": fp, CONSTANTS: fc}
+
+        def phi(z):
+            y = flow.apply(fv, z)
+            return y, y
+
+        Jphi, y = jax.jacfwd(phi, has_aux=True)(xk)
+        y = y - flow.apply(fv, jnp.zeros_like(xk))
+        return y, Jphi, metric.apply({"params": mp}, y)
+
+    return jax.vmap(one)(params["flow"], constants, params["metric"], x)
+
+
+def resolve_velocity(M: jax.Array, f: jax.Array, regularization: float) -> jax.Array:
+    """``q̇ = (M + εI)⁻¹ f``: the velocity-form root resolve of eq 5.1 with the diagonal offset
+    ``ε`` of §5.3.2 (``M = Σ J_kᵀ G_k J_k``, ``f = Σ J_kᵀ p_k``)."""
+    eye = jnp.eye(M.shape[-1], dtype=M.dtype)
+    with jax.default_matmul_precision("highest"):
+        return jnp.linalg.solve(M + regularization * eye, f)
+
+
+def training_velocity(config: StrategyConfig, params: Any, constants: Any, x: jax.Array,
+                      J: jax.Array) -> jax.Array:
+    """(*) of the module docstring at one sample from its task coordinates ``x (K, m)`` and their
+    Jacobians ``J (K, m, 7)`` (so ``J_k = J_{φ_k} J``): the policy the losses differentiate."""
+    y, Jphi, G = latent_leaves(config, params, constants, x)
+    A = jnp.einsum("kab,kbq->kaq", Jphi, J)
+    p = -config.latent_gain * y
+    M = jnp.einsum("kaq,kab,kbr->qr", A, G, A)
+    f = jnp.einsum("kaq,ka->q", A, p)
+    w = config.default_weight
+    M = M + w * jnp.einsum("kaq,kar->qr", J, J)
+    f = f - w * config.default_gain * jnp.einsum("kaq,ka->q", J, x)
+    return resolve_velocity(M, f, config.regularization)
+
+
+def _leaf_task_velocity(config: StrategyConfig, params: Any, constants: Any, x: jax.Array
+                        ) -> jax.Array:
+    """``ẋ_k = J_{φ_k}⁻¹ G_k⁻¹ (−γ y_k)`` per leaf, ``(K, m)``: each leaf alone (eq 5.3)."""
+    y, Jphi, G = latent_leaves(config, params, constants, x)
+    v_latent = jnp.linalg.solve(G, -config.latent_gain * y[..., None])
+    return jnp.linalg.solve(Jphi, v_latent)[..., 0]
+
+
+def _smooth_l1(err: jax.Array, beta: float) -> jax.Array:
+    return optax.losses.huber_loss(err, delta=beta) / beta
+
+
+def strategy_loss(config: StrategyConfig, params: Any, constants: Any, samples: Samples
+                  ) -> jax.Array:
+    """The training loss of ``config.strategy`` (module docstring) on weighted ``samples``.
+
+    ``"cspace"``: ``SmoothL1(π(q) − q̇_d)`` (eq 5.2); ``"joint"``: ``mean_k SmoothL1(J_{FK,k}(π(q)
+    − q̇_d))`` (eq 5.4); ``"independent"``/``"single_link"``: ``mean_k SmoothL1(ẋ_k − ẋ_{d,k})``
+    with each leaf alone (eq 5.3). Means over coordinates and leaves, weighted mean over samples.
+    """
+    beta = config.smooth_l1_beta
+    if config.strategy in INDEPENDENT_STRATEGIES:
+        pred = jax.vmap(lambda x: _leaf_task_velocity(config, params, constants, x))(samples.x)
+        per = jnp.mean(_smooth_l1(pred - samples.xd, beta), axis=(1, 2))
+    else:
+        qd = jax.vmap(lambda x, J: training_velocity(config, params, constants, x, J))(
+            samples.x, samples.J)
+        err = jnp.einsum("skaq,sq->ska", samples.J, qd - samples.qd)
+        per = jnp.mean(_smooth_l1(err, beta), axis=(1, 2))
+    w = samples.w
+    return jnp.sum(w * per) / jnp.maximum(jnp.sum(w), 1.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# Training
+# ---------------------------------------------------------------------------------------------
+
+
+def _optimizer(config: StrategyConfig, learning_rate: float) -> optax.GradientTransformation:
+    chain = []
+    if config.max_grad_norm is not None:
+        chain.append(optax.clip_by_global_norm(config.max_grad_norm))
+    if config.weight_decay > 0:
+        chain.append(optax.add_decayed_weights(config.weight_decay))
+    chain.append(optax.adam(learning_rate))
+    return optax.chain(*chain)
+
+
+def _fit(loss: Callable[[Any, jax.Array], jax.Array], params: Any,
+         tx: optax.GradientTransformation, iterations: int, key: jax.Array
+         ) -> tuple[Any, jax.Array]:
+    """``iterations`` steps of ``tx`` on ``loss(params, key)`` in one ``lax.scan`` (a fresh key
+    per step for minibatches); a step whose loss is not finite leaves the parameters unchanged.
+    Returns the final parameters and the loss before every step."""
+    if iterations == 0:
+        return params, jnp.zeros((0,), jnp.float32)
+
+    def step(carry, k):
+        p, opt = carry
+        value, grads = jax.value_and_grad(loss)(p, k)
+        updates, new_opt = tx.update(grads, opt, p)
+        ok = jnp.isfinite(value)
+        keep = lambda new, old: jax.tree.map(  # noqa: E731
+            lambda a, b: jnp.where(ok, a, b), new, old)
+        return (keep(optax.apply_updates(p, updates), p), keep(new_opt, opt)), value
+
+    (params, _), losses = jax.lax.scan(step, (params, tx.init(params)),
+                                       jax.random.split(key, iterations))
+    return params, losses
+
+
+def _minibatch(samples: Samples, key: jax.Array, batch_size: int | None) -> Samples:
+    """``batch_size`` samples drawn with probability ``∝ w`` (with replacement, then weighted
+    equally), or all samples when ``batch_size`` is ``None``."""
+    if batch_size is None:
+        return samples
+    w = samples.w
+    idx = jax.random.choice(key, w.shape[0], (batch_size,), p=w / jnp.sum(w))
+    picked = jax.tree.map(lambda a: a[idx], samples)
+    return picked._replace(w=jnp.ones((batch_size,), w.dtype))
+
+
+def _two_stage(config: StrategyConfig, params: Any, constants: Any, samples: Samples,
+               key: jax.Array) -> tuple[Any, jax.Array, jax.Array]:
+    """Stage 1: flows with the metrics at their initial value ``I``; stage 2: metrics with the
+    flows frozen (ANCHOR_FACTS §6)."""
+    def loss(p, k):
+        return strategy_loss(config, p, constants, _minibatch(samples, k, config.batch_size))
+
+    k1, k2 = jax.random.split(key)
+    flow, flow_losses = _fit(lambda fp, k: loss({**params, "flow": fp}, k), params["flow"],
+                             _optimizer(config, config.learning_rate), config.flow_iterations, k1)
+    metric, metric_losses = _fit(lambda mp, k: loss({"flow": flow, "metric": mp}, k),
+                                 params["metric"],
+                                 _optimizer(config, config.metric_learning_rate),
+                                 config.metric_iterations, k2)
+    return {"flow": flow, "metric": metric}, flow_losses, metric_losses
+
+
+def make_train(config: StrategyConfig) -> Callable[[jax.Array, Samples], StrategyResult]:
+    """``train(key, samples) -> StrategyResult`` for ``config`` (module docstring): initialise
+    the ``K`` leaves from ``key`` and run both stages. Pure and jittable; ``jax.vmap`` it over
+    keys (seeds) and/or ``samples.w`` (demonstration subsets)."""
+    if not isinstance(config, StrategyConfig):
+        raise TypeError(f"config must be a StrategyConfig, got {type(config)}")
+
+    def check(samples: Samples) -> None:
+        K, m = config.num_leaves, config.leaf_dim
+        S = samples.w.shape[0]
+        want = Samples((S, K, m), (S, K, m, DOF), (S, K, m), (S, DOF), (S,))
+        for name, shape, got in zip(Samples._fields, want, samples, strict=True):
+            if got.shape != shape:
+                raise ValueError(f"samples.{name} must have shape {shape} for strategy "
+                                 f"{config.strategy!r}, got {got.shape}")
+
+    def train(key: jax.Array, samples: Samples) -> StrategyResult:
+        check(samples)
+        k_init, k_fit = jax.random.split(key)
+        params, constants = init_params(config, k_init)
+        if config.strategy not in INDEPENDENT_STRATEGIES:
+            out, fl, ml = _two_stage(config, params, constants, samples, k_fit)
+            return StrategyResult(out, constants, fl, ml)
+        # Independent leaves: the same two-stage fit, vmapped over leaves (eq 5.3).
+        one = dataclasses.replace(config, strategy="single_link", point=0)
+
+        def leaf(p, c, x, J, xd, k):
+            p1 = jax.tree.map(lambda a: a[None], p)
+            c1 = jax.tree.map(lambda a: a[None], c)
+            s1 = samples._replace(x=x[:, None], J=J[:, None], xd=xd[:, None])
+            out, fl, ml = _two_stage(one, p1, c1, s1, k)
+            return jax.tree.map(lambda a: a[0], out), fl, ml
+
+        out, fl, ml = jax.vmap(leaf, in_axes=(0, 0, 1, 1, 1, 0))(
+            params, constants, samples.x, samples.J, samples.xd,
+            jax.random.split(k_fit, config.num_leaves))
+        return StrategyResult(out, constants, jnp.mean(fl, axis=0), jnp.mean(ml, axis=0))
+
+    return train
+
+
+# ---------------------------------------------------------------------------------------------
+# Execution
+# ---------------------------------------------------------------------------------------------
+
+
+def execution_config(obstacle_shape: str = "cylinder") -> policies.PolicyConfig:
+    """The hand-designed leaves added at execution time (§5.2.3): the Franka joint-limit and
+    collision RMPs with their default parameters (ANCHOR_FACTS §1.1) and joint-limit buffers."""
+    return policies.PolicyConfig(
+        robot="franka", joint_limit=JointLimitParams(), collision=CollisionParams(),
+        joint_limit_buffers=policies.FRANKA_JOINT_LIMIT_BUFFERS, obstacle_shape=obstacle_shape)
+
+
+def _lifted(rmp_moving: RMP, rmp_still: RMP, h: float) -> RMP:
+    """Velocity-form pair ``(M(x, ẋ), M(x, ẋ)·h·a(x, 0))`` of an acceleration leaf (module
+    docstring); ``a(x, 0) = f/M`` of the leaf at rest (``0`` where that metric vanishes)."""
+    M, _ = rmp_moving
+    M0, f0 = rmp_still
+    m0 = M0[..., 0, 0] if M0.shape[-1] == 1 else jnp.trace(M0, axis1=-2, axis2=-1)
+    a0 = jnp.where(m0[..., None] > 0, f0 / jnp.where(m0[..., None] > 0, m0[..., None], 1.0), 0.0)
+    return RMP(M, h * jnp.einsum("kab,kb->ka", M, a0))
+
+
+def policy_velocity(config: StrategyConfig, result: StrategyResult, q: jax.Array,
+                    goals: jax.Array, q_goal: jax.Array,
+                    hand: tuple[policies.PolicyConfig, Obstacles, jax.Array, float] | None = None
+                    ) -> jax.Array:
+    """The learned policy (*) at one configuration ``q (7,)`` through
+    :func:`mjxrmp.rmp2.pullback_velocity`; ``goals (3, 3)`` control-point goals, ``q_goal (7,)``.
+
+    ``hand = (policy_config, obstacles, qd_prev, h)`` adds the hand-designed leaves of
+    ``policy_config`` (e.g. :func:`execution_config`) in their velocity-form lift (module
+    docstring) at the previous command ``qd_prev`` with step ``h``. Without it this equals
+    :func:`training_velocity` on the same sample.
+    """
+    s, k = config.strategy, config.point
+
+    def learned_map(q_):
+        x = task_coordinates(s, k, q_, goals, q_goal)
+        return latent_leaves(config, result.params, result.constants, x)[0]
+
+    def learned_leaf(y):
+        G = jax.vmap(lambda mp, yk: config.metric.apply({"params": mp}, yk))(
+            result.params["metric"], y)
+        return RMP(G, -config.latent_gain * y)
+
+    def default_leaf(x):
+        w = config.default_weight
+        eye = jnp.broadcast_to(jnp.eye(x.shape[-1], dtype=x.dtype), (*x.shape, x.shape[-1]))
+        return RMP(w * eye, -w * config.default_gain * x)
+
+    def base_map(q_):
+        return {"learned": learned_map(q_),
+                "default": task_coordinates(s, k, q_, goals, q_goal)}
+
+    def base_leaves(x):
+        return {"learned": learned_leaf(x["learned"]), "default": default_leaf(x["default"])}
+
+    if hand is None:
+        root = rmp2.pullback_velocity(base_map, base_leaves, q)
+        return resolve_velocity(root.M, root.f, config.regularization)
+
+    cfg, obstacles, qd_prev, h = hand
+    dummy_goal = jnp.zeros((3,), q.dtype)
+    hand_map = lambda q_: policies.task_map(q_, dummy_goal, obstacles, cfg)  # noqa: E731
+    _, xd_hand = jax.jvp(hand_map, (q,), (qd_prev,))
+
+    def leaf_fn(x):
+        moving = policies.leaf_rmps(x["hand"], xd_hand, dummy_goal, obstacles, cfg)
+        still = policies.leaf_rmps(x["hand"], jax.tree.map(jnp.zeros_like, xd_hand),
+                                   dummy_goal, obstacles, cfg)
+        lifted = {n: _lifted(moving[n], still[n], h) for n in moving}
+        return {**base_leaves(x), "hand": lifted}
+
+    root = rmp2.pullback_velocity(lambda q_: {**base_map(q_), "hand": hand_map(q_)}, leaf_fn, q)
+    return resolve_velocity(root.M, root.f, config.regularization)
+
+
+def rollout(config: StrategyConfig, result: StrategyResult, q0: jax.Array, goals: jax.Array,
+            q_goal: jax.Array, num_steps: int, dt: float,
+            obstacles: Obstacles | None = None,
+            hand_config: policies.PolicyConfig | None = None) -> tuple[jax.Array, jax.Array]:
+    """Integrate the policy from ``q0 (7,)`` for ``num_steps`` steps of ``dt``:
+    ``q ← q + dt·clip(q̇, ±q̇_max)`` in one ``lax.scan``. With ``obstacles`` the hand-designed
+    joint-limit and collision leaves (``hand_config``, default :func:`execution_config`) are
+    added with ``h = dt``. Returns ``(qs (num_steps + 1, 7), qds (num_steps, 7))``."""
+    if isinstance(num_steps, bool) or not isinstance(num_steps, (int, np.integer)) \
+            or num_steps < 1:
+        raise ValueError(f"num_steps must be a static int >= 1, got {num_steps!r}")
+    if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be a finite number > 0, got {dt!r}")
+    q0 = rmp2.check_configuration("q0", q0, DOF)
+    qd_max = jnp.asarray(franka.QD_MAX, q0.dtype)
+    cfg = execution_config() if hand_config is None else hand_config
+
+    def step(carry, _):
+        q, qd_prev = carry
+        hand = None if obstacles is None else (cfg, obstacles, qd_prev, dt)
+        qd = jnp.clip(policy_velocity(config, result, q, goals, q_goal, hand), -qd_max, qd_max)
+        q = q + dt * qd
+        return (q, qd), (q, qd)
+
+    _, (qs, qds) = jax.lax.scan(step, (q0, jnp.zeros_like(q0)), None, length=int(num_steps))
+    return jnp.concatenate([q0[None], qs], axis=0), qds

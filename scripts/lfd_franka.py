@@ -1,0 +1,411 @@
+"""Learn RMP² policies from the real Franka demonstrations and compare the strategies of ch. 5.
+
+Usage::
+
+    python scripts/lfd_franka.py [--tasks door_reaching drawer_closing] \\
+        [--strategies cspace independent joint single_link] [--preset cpu|thesis] \\
+        [--root /work/shared/data/franka_demos] [--out results/lfd_franka] \\
+        [--figures docs/figures] [--seed 0]
+    python scripts/lfd_franka.py --quick --out /tmp/x --figures /tmp/x     # seconds (tests)
+
+For each task (door reaching, drawer closing; 6 demonstrations each, thesis §5.2.3) and each
+strategy of :mod:`agents.lfd_strategies` (configuration-space regression, independent per-subtask
+learning, joint learning through the velocity-form RMP², single-link learning):
+
+* **leave-one-out**: for every demonstration ``f`` a policy is trained on the other five. All
+  folds are one compiled program (``vmap`` over the folds' sample weights and keys
+  ``fold_in(PRNGKey(seed), f)``).
+* **reproduction error** (§5.3.2, Fig 5.7a): the policy is rolled out from the held-out
+  demonstration's start toward its goals for the demonstration's duration; the mean position
+  error of each of the three hand control points against the held-out demonstration (time
+  aligned: :func:`mjxrmp.traj_metrics.mean_error`), averaged over the three points.
+* **success from new starts** (§5.3.2, Fig 5.7c): ``--num-starts`` configurations drawn around the
+  held-out start (``N(0, --perturbation²)`` per joint, clipped inside the joint limits), rolled
+  out for ``--horizon-factor`` × the longest demonstration's duration. Success = all three
+  control points within ``--success-radius`` (2 cm) of their goals at the end, no joint outside
+  the model's limits at any time, finite. The same starts are run again with a vertical
+  cylindrical obstacle (radius ``--obstacle-radius``) placed beside the held-out demonstration's
+  path — at its midpoint, moved perpendicular to the path in the horizontal plane by the smallest
+  offset that leaves ``--obstacle-clearance`` between the demonstrated motion (all 48 collision
+  control points) and the cylinder — and avoided through the hand-designed collision RMP
+  (§5.2.3); success then also requires no contact (exact distances > 0 for all 48 points).
+
+Every rollout runs the execution policy of :mod:`agents.lfd_strategies` (learned leaves + the
+hand-designed joint-limit and collision leaves in their velocity-form lift; the obstacle is
+switched off by its ``active`` flag when absent) with step ``--exec-dt``.
+
+Writes ``metrics.json`` (per task and strategy: per-fold errors per control point, success
+counts, training time and final losses; the settings) and ``table.csv`` to ``--out``, and the
+figures ``lfd_franka_<task>.png`` (demonstrated vs reproduced control-point triangles and
+centre paths, 3-D, as Figs 5.1/5.4) and ``lfd_franka_errors.png`` (box plots of the errors and
+success rates per strategy, as Fig 5.7) to ``--figures``. Default (CPU preset, 2 tasks × 4
+strategies × 6 folds) takes about ten minutes on 2 CPU cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import sys
+import time
+
+if __package__ in (None, ""):
+    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from mjxrmp._xla import configure_cpu_flags
+
+configure_cpu_flags()
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+from agents import lfd_strategies as L  # noqa: E402
+from mjxrmp import traj_metrics  # noqa: E402
+from mjxrmp.data import franka_demos  # noqa: E402
+from mjxrmp.geometry import make_obstacles, point_obstacle_distances  # noqa: E402
+from mjxrmp.robots import franka  # noqa: E402
+
+LABELS = {"cspace": "C-space", "independent": "Independent", "joint": "Joint (RMP²)",
+          "single_link": "Single link"}
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--root", default=franka_demos.DEFAULT_ROOT,
+                   help="demonstration directory (default: %(default)s)")
+    p.add_argument("--tasks", nargs="+", default=list(franka_demos.TASKS),
+                   choices=franka_demos.TASKS)
+    p.add_argument("--strategies", nargs="+", default=list(L.STRATEGIES), choices=L.STRATEGIES)
+    p.add_argument("--preset", default="cpu", choices=("cpu", "thesis", "tiny"),
+                   help="StrategyConfig preset: cpu (default), thesis (full sizes, slow), tiny")
+    p.add_argument("--flow-iterations", type=int, default=None, help="override stage 1 steps")
+    p.add_argument("--metric-iterations", type=int, default=None, help="override stage 2 steps")
+    p.add_argument("--dt", type=float, default=0.1, help="resampling step of the data (s)")
+    p.add_argument("--exec-dt", type=float, default=0.05, help="rollout step (s)")
+    p.add_argument("--folds", type=int, default=None,
+                   help="hold out only the first N demonstrations (default: all)")
+    p.add_argument("--num-starts", type=int, default=10, help="new initial configurations")
+    p.add_argument("--perturbation", type=float, default=0.1,
+                   help="std of the start perturbation per joint (rad)")
+    p.add_argument("--horizon-factor", type=float, default=1.5,
+                   help="success rollouts last this many longest-demonstration durations")
+    p.add_argument("--success-radius", type=float, default=0.02, help="goal tolerance (m)")
+    p.add_argument("--obstacle-radius", type=float, default=0.05, help="cylinder radius (m)")
+    p.add_argument("--obstacle-clearance", type=float, default=0.03,
+                   help="clearance between the demonstration and the cylinder (m)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default="results/lfd_franka")
+    p.add_argument("--figures", default="docs/figures")
+    p.add_argument("--quick", action="store_true",
+                   help="tests: tiny preset, 1 fold, 1 start, drawer task, joint strategy, "
+                        "dt 0.5 s")
+    args = p.parse_args(argv)
+    if args.quick:
+        args.preset, args.folds, args.num_starts = "tiny", 1, 1
+        if args.tasks == list(franka_demos.TASKS):
+            args.tasks = ["drawer_closing"]
+        if args.strategies == list(L.STRATEGIES):
+            args.strategies = ["joint"]
+        args.dt, args.exec_dt, args.horizon_factor = 0.5, 0.25, 1.0
+    for name in ("dt", "exec_dt", "perturbation", "horizon_factor", "success_radius",
+                 "obstacle_radius", "obstacle_clearance"):
+        value = getattr(args, name)
+        if not (math.isfinite(value) and value > 0):
+            p.error(f"--{name.replace('_', '-')} must be > 0, got {value}")
+    if args.num_starts < 1 or (args.folds is not None and args.folds < 1):
+        p.error("--num-starts and --folds must be >= 1")
+    return args
+
+
+def strategy_config(args: argparse.Namespace, strategy: str) -> L.StrategyConfig:
+    if args.preset == "thesis":
+        cfg = L.StrategyConfig(strategy=strategy)
+    else:
+        cfg = getattr(L.StrategyConfig, args.preset)(strategy)
+    changes = {}
+    if args.flow_iterations is not None:
+        changes["flow_iterations"] = args.flow_iterations
+    if args.metric_iterations is not None:
+        changes["metric_iterations"] = args.metric_iterations
+    return cfg.replace(**changes) if changes else cfg
+
+
+# ---------------------------------------------------------------------------------------------
+# Scenario: starts and obstacles
+# ---------------------------------------------------------------------------------------------
+
+_cps = jax.jit(jax.vmap(franka.control_points))
+_hand = jax.jit(jax.vmap(franka_demos.hand_points))
+RADII = np.asarray(franka.CONTROL_POINT_RADII, np.float32)
+
+
+def clearance(qs: np.ndarray, center_xy: np.ndarray, radius: float) -> np.ndarray:
+    """Exact smallest distance between the 48 collision points and a vertical cylinder, per
+    configuration of ``qs (T, 7)``."""
+    obs = make_obstacles(jnp.asarray([[*center_xy, 0.0]], jnp.float32),
+                         jnp.asarray([radius], jnp.float32))
+    d = jax.vmap(lambda p: point_obstacle_distances(p, jnp.asarray(RADII), obs, "cylinder",
+                                                    smooth=False))(_cps(jnp.asarray(qs)))
+    return np.asarray(jnp.min(d, axis=(1, 2)))
+
+
+def place_obstacle(demo: franka_demos.FrankaDemo, radius: float, margin: float) -> np.ndarray:
+    """Cylinder centre ``(3,)`` beside the demonstration's centre path (module docstring)."""
+    path = demo.points[:, 0, :2]
+    mid = len(path) // 2
+    tangent = path[min(mid + 1, len(path) - 1)] - path[max(mid - 1, 0)]
+    tangent = tangent / max(np.linalg.norm(tangent), 1e-9)
+    normal = np.array([-tangent[1], tangent[0]])
+    for offset in np.linspace(0.0, 0.6, 61):
+        for sign in (1.0, -1.0):
+            c = path[mid] + sign * offset * normal
+            if clearance(demo.q, c, radius).min() >= margin:
+                return np.array([c[0], c[1], 0.0])
+    raise RuntimeError(f"no obstacle position within 0.6 m of {demo.source}'s path")
+
+
+def perturbed_starts(key: jax.Array, q0: np.ndarray, num: int, std: float) -> np.ndarray:
+    """``num`` starts ``q0 + N(0, std²)`` clipped inside the buffered joint limits."""
+    lo = np.asarray(franka.Q_LOWER) + 0.05
+    hi = np.asarray(franka.Q_UPPER) - 0.05
+    noise = std * np.asarray(jax.random.normal(key, (num, q0.shape[0])))
+    return np.clip(q0[None] + noise, lo, hi).astype(np.float32)
+
+
+# ---------------------------------------------------------------------------------------------
+# One task × strategy
+# ---------------------------------------------------------------------------------------------
+
+
+def run_strategy(args, cfg, stacked, demos, folds, starts, obstacle_centers, horizon, log):
+    """Train all folds, roll out, evaluate; returns the metrics dict and the reproductions."""
+    N = stacked.mask.shape[0]
+    F = len(folds)
+    samples = L.make_samples(cfg, stacked)
+    train_sets = jnp.asarray([[j != f for j in range(N)] for f in folds])
+    W = jax.vmap(lambda tr: L.fold_weights(stacked.mask, tr))(train_sets)
+    keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(args.seed), f) for f in folds])
+    train = jax.jit(jax.vmap(L.make_train(cfg), in_axes=(0, L.Samples(None, None, None, None, 0))))
+    t0 = time.time()
+    result = jax.block_until_ready(train(keys, samples._replace(w=W)))
+    train_s = time.time() - t0
+    log(f"    trained {F} folds in {train_s:.1f} s; final losses flow "
+        f"{np.asarray(result.flow_losses[:, -1]).mean():.4g}"
+        + (f", metric {np.asarray(result.metric_losses[:, -1]).mean():.4g}"
+           if cfg.metric_iterations else ""))
+
+    # Rollouts: per fold, [held-out start, starts..., starts... with the obstacle].
+    R = starts.shape[1]
+    fold_idx = np.asarray(folds)
+    q0 = np.concatenate([stacked.q[fold_idx, 0][:, None], starts, starts], axis=1)   # (F, B, 7)
+    active = np.concatenate([np.zeros((F, 1 + R)), np.ones((F, R))], axis=1)
+    goals = np.asarray(stacked.goals)[fold_idx]
+    q_goal = np.asarray(stacked.q_goal)[fold_idx]
+    hand_cfg = L.execution_config()
+
+    def one(res, q0_, g, qg, center, act):
+        obs = make_obstacles(center[None], jnp.asarray([args.obstacle_radius], jnp.float32),
+                             act[None])
+        return L.rollout(cfg, res, q0_, g, qg, horizon, args.exec_dt, obs, hand_cfg)[0]
+
+    roll = jax.jit(jax.vmap(jax.vmap(one, in_axes=(None, 0, None, None, None, 0))))
+    t0 = time.time()
+    qs = np.asarray(roll(result, jnp.asarray(q0), jnp.asarray(goals), jnp.asarray(q_goal),
+                         jnp.asarray(obstacle_centers, jnp.float32),
+                         jnp.asarray(active, jnp.float32)))                          # (F,B,H+1,7)
+    roll_s = time.time() - t0
+    B, H1 = qs.shape[1], qs.shape[2]
+    pts = np.asarray(_hand(jnp.asarray(qs.reshape(-1, 7)))).reshape(F, B, H1, 3, 3)
+
+    per_fold = []
+    lo, hi = np.asarray(franka.Q_LOWER), np.asarray(franka.Q_UPPER)
+    reproductions = []
+    for i, f in enumerate(folds):
+        demo = demos[f]
+        n = round((demo.length - 1) * args.dt / args.exec_dt) + 1
+        rep = pts[i, 0, :n]
+        reproductions.append(rep)
+        errors = [traj_metrics.mean_error(rep[:, k], demo.points[:, k]) for k in range(3)]
+        finite = np.all(np.isfinite(qs[i]), axis=(1, 2))
+        within = np.all((qs[i] >= lo) & (qs[i] <= hi), axis=(1, 2))
+        reached = np.all(np.linalg.norm(pts[i, :, -1] - goals[i][None], axis=-1)
+                         <= args.success_radius, axis=-1)
+        ok = finite & within & reached
+        free = np.array([clearance(np.nan_to_num(qs[i, b]), obstacle_centers[i, :2],
+                                   args.obstacle_radius).min() > 0
+                         for b in range(1 + R, B)])
+        per_fold.append({
+            "held_out": int(f),
+            "mean_position_error": float(np.mean(errors)),
+            "mean_position_error_per_point": [float(e) for e in errors],
+            "final_error_held_out_start": float(np.max(np.linalg.norm(
+                pts[i, 0, -1] - goals[i], axis=-1))),
+            "success": int(ok[1:1 + R].sum()),
+            "success_obstacle": int((ok[1 + R:] & free).sum()),
+            "collisions_obstacle": int((~free).sum()),
+            "joint_limit_violations": int((~within).sum()),
+            "non_finite": int((~finite).sum()),
+            "obstacle_center": [float(v) for v in obstacle_centers[i]],
+        })
+    errs = np.array([p["mean_position_error"] for p in per_fold])
+    out = {
+        "config": {k: (list(v) if isinstance(v, tuple) else v)
+                   for k, v in cfg.__dict__.items()},
+        "train_seconds": train_s,
+        "rollout_seconds": roll_s,
+        "final_flow_loss": float(np.asarray(result.flow_losses[:, -1]).mean()),
+        "final_metric_loss": (float(np.asarray(result.metric_losses[:, -1]).mean())
+                              if cfg.metric_iterations else None),
+        "mean_position_error": float(errs.mean()),
+        "mean_position_error_std": float(errs.std()),
+        "success_rate": sum(p["success"] for p in per_fold) / (F * R),
+        "success_rate_obstacle": sum(p["success_obstacle"] for p in per_fold) / (F * R),
+        "folds": per_fold,
+    }
+    log(f"    error {out['mean_position_error'] * 100:.2f} ± "
+        f"{out['mean_position_error_std'] * 100:.2f} cm, success {out['success_rate']:.0%}, "
+        f"with obstacle {out['success_rate_obstacle']:.0%} (rollouts {roll_s:.1f} s)")
+    return out, reproductions
+
+
+# ---------------------------------------------------------------------------------------------
+# Figures
+# ---------------------------------------------------------------------------------------------
+
+
+def _triangles(ax, pts: np.ndarray, color: str, every: int) -> None:
+    for t in range(0, len(pts), every):
+        tri = pts[t][[0, 1, 2, 0]]
+        ax.plot(tri[:, 0], tri[:, 1], tri[:, 2], color=color, lw=0.6, alpha=0.6)
+    ax.plot(pts[:, 0, 0], pts[:, 0, 1], pts[:, 0, 2], color=color, lw=1.2)
+
+
+def plot_task(path, task, demos, folds, reproductions, strategies):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cols = 1 + len(strategies)
+    fig = plt.figure(figsize=(4 * cols, 4))
+    colors = plt.cm.tab10(np.arange(10))
+    ax = fig.add_subplot(1, cols, 1, projection="3d")
+    for i, f in enumerate(folds):
+        _triangles(ax, demos[f].points, colors[i % 10], max(demos[f].length // 12, 1))
+    ax.set_title(f"{task}: demonstrations")
+    for j, s in enumerate(strategies):
+        ax = fig.add_subplot(1, cols, 2 + j, projection="3d")
+        for i, f in enumerate(folds):
+            rep = reproductions[s][i]
+            ax.plot(*demos[f].points[:, 0].T, color=colors[i % 10], lw=0.8, ls="--")
+            _triangles(ax, rep, colors[i % 10], max(len(rep) // 12, 1))
+        ax.set_title(f"{LABELS[s]} (held out)")
+    for a in fig.axes:
+        a.set_xlabel("x")
+        a.set_ylabel("y")
+        a.set_zlabel("z")
+        a.tick_params(labelsize=6)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_errors(path, metrics):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = list(metrics)
+    fig, axes = plt.subplots(2, len(tasks), figsize=(5 * len(tasks), 7), squeeze=False)
+    for j, task in enumerate(tasks):
+        strategies = list(metrics[task])
+        data = [[p["mean_position_error"] * 100 for p in metrics[task][s]["folds"]]
+                for s in strategies]
+        axes[0, j].boxplot(data)
+        axes[0, j].set_xticks(range(1, len(strategies) + 1),
+                              [LABELS[s] for s in strategies], fontsize=8)
+        axes[0, j].set_ylabel("mean position error (cm)")
+        axes[0, j].set_title(f"{task}: leave-one-out reproduction")
+        x = np.arange(len(strategies))
+        axes[1, j].bar(x - 0.2, [metrics[task][s]["success_rate"] * 100 for s in strategies],
+                       0.4, label="no obstacle")
+        axes[1, j].bar(x + 0.2, [metrics[task][s]["success_rate_obstacle"] * 100
+                                 for s in strategies], 0.4, label="cylinder obstacle")
+        axes[1, j].set_xticks(x, [LABELS[s] for s in strategies], fontsize=8)
+        axes[1, j].set_ylim(0, 105)
+        axes[1, j].set_ylabel("success from new starts (%)")
+        axes[1, j].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def main(argv: list[str] | None = None) -> dict:
+    args = parse_args(argv)
+    os.makedirs(args.out, exist_ok=True)
+    os.makedirs(args.figures, exist_ok=True)
+    t_start = time.time()
+
+    def log(msg: str) -> None:
+        print(f"[{time.time() - t_start:6.1f} s] {msg}", flush=True)
+
+    metrics: dict = {}
+    rows = []
+    for ti, task in enumerate(args.tasks):
+        demos = franka_demos.load_task(task, args.root, dt=args.dt)
+        stacked = franka_demos.stack(demos)
+        N = len(demos)
+        folds = list(range(N if args.folds is None else min(args.folds, N)))
+        key = jax.random.fold_in(jax.random.PRNGKey(args.seed + 1), ti)
+        starts = np.stack([perturbed_starts(jax.random.fold_in(key, f), demos[f].q[0],
+                                            args.num_starts, args.perturbation)
+                           for f in folds])
+        centers = np.stack([place_obstacle(demos[f], args.obstacle_radius,
+                                           args.obstacle_clearance) for f in folds])
+        longest = max(d.length for d in demos)
+        horizon = math.ceil(args.horizon_factor * (longest - 1) * args.dt / args.exec_dt)
+        log(f"{task}: {N} demonstrations, lengths {[d.length for d in demos]} at dt={args.dt}; "
+            f"{len(folds)} folds, horizon {horizon} steps of {args.exec_dt} s")
+        metrics[task] = {}
+        reproductions = {}
+        for s in args.strategies:
+            cfg = strategy_config(args, s)
+            log(f"  {s}")
+            metrics[task][s], reproductions[s] = run_strategy(
+                args, cfg, stacked, demos, folds, starts, centers, horizon, log)
+            m = metrics[task][s]
+            rows.append({"task": task, "strategy": s,
+                         "mean_position_error_cm": round(m["mean_position_error"] * 100, 3),
+                         "std_cm": round(m["mean_position_error_std"] * 100, 3),
+                         "success_rate": round(m["success_rate"], 3),
+                         "success_rate_obstacle": round(m["success_rate_obstacle"], 3),
+                         "train_seconds": round(m["train_seconds"], 1)})
+        plot_task(os.path.join(args.figures, f"lfd_franka_{task}.png"), task, demos, folds,
+                  reproductions, args.strategies)
+    plot_errors(os.path.join(args.figures, "lfd_franka_errors.png"), metrics)
+    settings = {k: v for k, v in vars(args).items()}
+    settings["seconds"] = time.time() - t_start
+    settings["devices"] = [str(d) for d in jax.devices()]
+    with open(os.path.join(args.out, "metrics.json"), "w") as fh:
+        json.dump({"settings": settings, "tasks": metrics}, fh, indent=1)
+    with open(os.path.join(args.out, "table.csv"), "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    log("task             strategy      error (cm)      success  with obstacle")
+    for r in rows:
+        log(f"{r['task']:16s} {r['strategy']:12s} {r['mean_position_error_cm']:6.2f} ± "
+            f"{r['std_cm']:5.2f}   {r['success_rate']:6.0%}   {r['success_rate_obstacle']:6.0%}")
+    log(f"done in {settings['seconds']:.0f} s; wrote {args.out} and {args.figures}")
+    return {"settings": settings, "tasks": metrics}
+
+
+if __name__ == "__main__":
+    main()

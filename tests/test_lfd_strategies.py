@@ -1,0 +1,259 @@
+"""Learning RMP² policies from the Franka demonstrations (agents/lfd_strategies.py, ch. 5).
+
+Losses and the velocity-form resolve are checked against float64 references assembled
+explicitly in NumPy from finite-difference Jacobians; one tiny joint policy is trained once per
+module (two seeds in one vmapped program) for the stability, vmap and script checks.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import mjxrmp  # noqa: F401  (XLA flags first)
+from agents import lfd_strategies as L
+from mjxrmp.data import franka_demos as fd
+from mjxrmp.flows import CONSTANTS
+
+pytestmark = pytest.mark.skipif(not os.path.isdir(fd.DEFAULT_ROOT),
+                                reason="Franka demonstrations not available")
+
+
+@pytest.fixture(scope="module")
+def stacked():
+    return fd.stack(fd.load_task("drawer_closing", dt=0.5)[:3])
+
+
+@contextlib.contextmanager
+def _x64():
+    jax.config.update("jax_enable_x64", True)
+    try:
+        yield
+    finally:
+        jax.config.update("jax_enable_x64", False)
+
+
+def _perturbed_params(config, key, scale=0.3):
+    params, consts = L.init_params(config, key)
+    leaves, tree = jax.tree.flatten(params)
+    keys = jax.random.split(jax.random.fold_in(key, 1), len(leaves))
+    leaves = [a + scale * jax.random.normal(k, a.shape, a.dtype) for a, k in zip(leaves, keys,
+                                                                                 strict=True)]
+    return jax.tree.unflatten(tree, leaves), consts
+
+
+def _f64(tree):
+    return jax.tree.map(lambda a: np.asarray(a, np.float64) if a.dtype.kind == "f" else a, tree)
+
+
+def _fd_jacobian(fn, z, h=1e-6):
+    cols = [(fn(z + h * e) - fn(z - h * e)) / (2 * h) for e in np.eye(z.shape[0])]
+    return np.stack(cols, axis=-1)
+
+
+def _smooth_l1(e, beta):
+    a = np.abs(e)
+    return np.where(a < beta, 0.5 * e * e / beta, a - 0.5 * beta)
+
+
+def _reference(config, params, consts):
+    """``ref(q, goals, q_goal)``: float64 NumPy assembly of the strategy's pieces at one
+    configuration: task coordinates ``x``, ``J_FK``, latent ``y``, ``J_ψ`` (finite differences
+    through FK and the flows), the metrics and the resolved joint velocity of eq 5.1 with the
+    default leaves and ``ε``. FK and the flows are only evaluated (jitted) by JAX."""
+    flow, K = config.flow, config.num_leaves
+    leaf = lambda tree, k: jax.tree.map(lambda a: a[k], tree)  # noqa: E731
+
+    @jax.jit
+    def task_j(qq, goals, q_goal):
+        if config.strategy == "cspace":
+            return (qq - q_goal)[None]
+        pts = fd.hand_points(qq) - goals
+        return pts[config.point:config.point + 1] if config.strategy == "single_link" else pts
+
+    @jax.jit
+    def phi_j(x):            # (K, m) -> φ_k(x_k) − φ_k(0) for every leaf
+        return jnp.stack([flow.apply({"params": leaf(params["flow"], k),
+                                      CONSTANTS: leaf(consts, k)}, x[k])
+                          - flow.apply({"params": leaf(params["flow"], k),
+                                        CONSTANTS: leaf(consts, k)}, jnp.zeros_like(x[k]))
+                          for k in range(K)])
+
+    def phi(k, z):           # leaf k's flow alone, for its Jacobian in x
+        x = np.zeros((K, z.shape[0]))
+        x[k] = z
+        return np.asarray(phi_j(x))[k]
+
+    def ref(q, goals, q_goal):
+        task = lambda qq: np.asarray(task_j(qq, goals, q_goal))  # noqa: E731
+        psi = lambda qq: np.asarray(phi_j(task_j(qq, goals, q_goal)))  # noqa: E731
+        return _assemble(config, params, task, psi, phi, q)
+
+    return ref
+
+
+def _assemble(config, params, task, psi, phi, q):
+    K, metric = config.num_leaves, config.metric
+    leaf = lambda tree, k: jax.tree.map(lambda a: a[k], tree)  # noqa: E731
+    x, y = task(q), psi(q)
+    J_fk = _fd_jacobian(task, q)                       # (K, m, 7)
+    J_psi = _fd_jacobian(psi, q)                       # (K, m, 7)
+    J_phi = np.stack([_fd_jacobian(lambda z, k=k: phi(k, z), x[k]) for k in range(K)])
+    G = np.stack([np.asarray(metric.apply({"params": leaf(params["metric"], k)},
+                                          jnp.asarray(y[k]))) for k in range(K)])
+    w, gam = config.default_weight, config.latent_gain
+    M = sum(J_psi[k].T @ G[k] @ J_psi[k] + w * J_fk[k].T @ J_fk[k] for k in range(K))
+    f = sum(J_psi[k].T @ (-gam * y[k]) - w * config.default_gain * J_fk[k].T @ x[k]
+            for k in range(K))
+    qd = np.linalg.solve(M + config.regularization * np.eye(7), f)
+    xd_alone = np.stack([np.linalg.solve(J_phi[k], np.linalg.solve(G[k], -gam * y[k]))
+                         for k in range(K)])
+    return dict(x=x, J_fk=J_fk, J_psi=J_psi, G=G, M=M, f=f, qd=qd, xd_alone=xd_alone)
+
+
+@pytest.mark.parametrize("strategy", L.STRATEGIES)
+def test_loss_matches_float64_reference(stacked, strategy):
+    """Eq 5.2 (cspace), eq 5.3 (independent, single link), eq 5.4 (joint)."""
+    config = L.StrategyConfig.tiny(strategy, metric_hidden=(4,))
+    idx = [(0, 1), (1, 3), (2, 5)]
+    with _x64():
+        params, consts = _f64(_perturbed_params(config, jax.random.PRNGKey(3)))
+        samples = _f64(L.make_samples(config, stacked))
+        T = stacked.mask.shape[1]
+        rows = np.array([n * T + t for n, t in idx])  # samples.x/J/xd are float32 values
+        samples = jax.tree.map(lambda a: a[rows], samples)._replace(w=np.array([1.0, 2.0, 0.5]))
+        got = float(jax.jit(lambda p, c, sm: L.strategy_loss(config, p, c, sm))(
+            params, consts, samples))
+        reference = _reference(config, params, consts)
+        tv = jax.jit(lambda x, J: L.training_velocity(config, params, consts, x, J))
+        per = []
+        for (n, t) in idx:
+            q = np.asarray(stacked.q[n, t], np.float64)
+            ref = reference(q, np.asarray(stacked.goals[n], np.float64),
+                            np.asarray(stacked.q_goal[n], np.float64))
+            np.testing.assert_allclose(samples.J[len(per)], ref["J_fk"], atol=1e-6)
+            np.testing.assert_allclose(samples.x[len(per)], ref["x"], atol=1e-6)
+            if strategy in L.INDEPENDENT_STRATEGIES:
+                k0 = config.point if strategy == "single_link" else slice(None)
+                xd_demo = np.asarray(stacked.point_velocities[n, t], np.float64)[k0]
+                err = ref["xd_alone"] - xd_demo.reshape(ref["xd_alone"].shape)
+            else:
+                qd_demo = np.asarray(stacked.qd[n, t], np.float64)
+                err = np.einsum("kaq,q->ka", ref["J_fk"], ref["qd"] - qd_demo)
+                np.testing.assert_allclose(tv(samples.x[len(per)], samples.J[len(per)]),
+                                           ref["qd"], rtol=1e-4, atol=1e-7)
+            per.append(np.mean(_smooth_l1(err, config.smooth_l1_beta)))
+        want = np.sum(np.array([1.0, 2.0, 0.5]) * np.array(per)) / 3.5
+    np.testing.assert_allclose(got, want, rtol=1e-4)
+
+
+def test_velocity_form_resolve_is_the_pseudo_inverse(stacked):
+    """With no default leaves and ``ε → 0`` eq 5.1's resolve is ``q̇ = (Σ J_kᵀG_kJ_k)⁺ Σ J_kᵀp_k``
+    (the root is rank 6 < 7: three points on a rigid hand), via rmp2.pullback_velocity."""
+    config = L.StrategyConfig.tiny("joint", default_weight=0.0, regularization=1e-10)
+    with _x64():
+        params, consts = _f64(_perturbed_params(config, jax.random.PRNGKey(5)))
+        result = L.StrategyResult(params, consts, None, None)
+        q = np.asarray(stacked.q[1, 4], np.float64)
+        goals = np.asarray(stacked.goals[1], np.float64)
+        qg = np.asarray(stacked.q_goal[1], np.float64)
+        ref = _reference(config, params, consts)(q, goals, qg)
+        assert np.linalg.matrix_rank(ref["M"], tol=1e-8 * np.abs(ref["M"]).max()) == 6
+        pinv = np.linalg.pinv(ref["M"], rcond=1e-8) @ ref["f"]
+        got = np.asarray(jax.jit(lambda qq: L.policy_velocity(config, result, qq, goals, qg))(
+            jnp.asarray(q)))
+    # finite-difference Jacobians (error ~1e-9) amplified by the root's conditioning
+    np.testing.assert_allclose(got, pinv, rtol=1e-4, atol=1e-6)
+    # eq 5.1's optimality condition Σ J_kᵀG_k(J_k q̇ − v_k) = M q̇ − f = 0, v_k = −γG_k⁻¹y_k
+    np.testing.assert_allclose(ref["M"] @ got, ref["f"], atol=1e-6 * np.abs(ref["f"]).max())
+
+
+# ---------------------------------------------------------------------------------------------
+# One tiny trained joint policy (two seeds, one program)
+# ---------------------------------------------------------------------------------------------
+
+TINY = L.StrategyConfig.tiny("joint", flow_iterations=20, metric_iterations=5)
+
+
+@pytest.fixture(scope="module")
+def trained(stacked):
+    samples = L.make_samples(TINY, stacked)
+    keys = jax.random.split(jax.random.PRNGKey(0), 2)
+    train = jax.jit(jax.vmap(L.make_train(TINY), in_axes=(0, None)))
+    return samples, keys, train(keys, samples)
+
+
+def test_vmap_over_seeds_equals_separate_runs(trained):
+    samples, keys, both = trained
+    one = jax.jit(L.make_train(TINY))(keys[1], samples)
+    for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(jax.tree.map(lambda x: x[1], both)),
+                    strict=True):
+        np.testing.assert_allclose(a, b, rtol=2e-4, atol=2e-6)
+    assert float(both.flow_losses[0, -1]) < float(both.flow_losses[0, 0])
+    assert not np.allclose(both.flow_losses[0], both.flow_losses[1])
+
+
+@pytest.fixture(scope="module")
+def rollout_fn(trained, stacked):
+    result = jax.tree.map(lambda x: x[0], trained[2])
+    goals, qg = stacked.goals[0], stacked.q_goal[0]
+
+    @jax.jit
+    def run(q0):
+        qs, _ = L.rollout(TINY, result, q0, goals, qg, 200, 0.05)
+        pts = jax.vmap(fd.hand_points)(qs)
+        return jnp.linalg.norm(pts - goals, axis=-1).max(axis=-1), qs
+
+    return run
+
+
+@settings(max_examples=5, deadline=None)
+@given(st.lists(st.floats(-0.15, 0.15), min_size=7, max_size=7))
+def test_learned_joint_policy_converges_from_perturbed_starts(rollout_fn, stacked, delta):
+    """Stability of (*) for every θ: from perturbed starts the hand reaches its goals."""
+    dist, qs = rollout_fn(stacked.q[0, 0] + jnp.asarray(delta, jnp.float32))
+    dist = np.asarray(dist)
+    assert np.all(np.isfinite(np.asarray(qs)))
+    assert dist[-1] < 0.01 and dist[-1] < 0.05 * dist[0]
+    # the distance keeps shrinking at the end (no limit cycle)
+    assert dist[-1] <= dist[-50] + 1e-4
+
+
+def test_config_validation():
+    with pytest.raises(ValueError, match="strategy must be one of"):
+        L.StrategyConfig(strategy="bc")
+    with pytest.raises(ValueError, match="regularization"):
+        L.StrategyConfig(regularization=0.0)
+    with pytest.raises(ValueError, match="point must be 0, 1 or 2"):
+        L.StrategyConfig(strategy="single_link", point=3)
+    with pytest.raises(ValueError, match="metric_iterations"):
+        L.StrategyConfig(metric_iterations=-1)
+
+
+def test_train_rejects_wrong_sample_shapes(trained):
+    samples = trained[0]
+    with pytest.raises(ValueError, match=r"samples\.x must have shape"):
+        L.make_train(L.StrategyConfig.tiny("cspace"))(jax.random.PRNGKey(0), samples)
+
+
+def test_script_quick_runs_end_to_end(tmp_path):
+    from scripts.lfd_franka import main
+
+    out = main(["--quick", "--out", str(tmp_path), "--figures", str(tmp_path)])
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    joint = m["tasks"]["drawer_closing"]["joint"]
+    assert np.isfinite(joint["mean_position_error"]) and 0 <= joint["success_rate"] <= 1
+    assert len(joint["folds"][0]["mean_position_error_per_point"]) == 3
+    assert (tmp_path / "table.csv").read_text().startswith("task,strategy,")
+    for name in ("lfd_franka_drawer_closing.png", "lfd_franka_errors.png"):
+        assert (tmp_path / name).stat().st_size > 1000
+    assert out["tasks"]["drawer_closing"]["joint"]["mean_position_error"] == \
+        joint["mean_position_error"]
