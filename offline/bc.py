@@ -138,7 +138,7 @@ def _bc_update(policy: TanhGaussianPolicy, optimizer: optax.GradientTransformati
     return update
 
 
-def _reward_episodes(dynamics: odata.Dataset, reward_data: RewardData) -> odata.Dataset:
+def reward_episodes(dynamics: odata.Dataset, reward_data: RewardData) -> odata.Dataset:
     """The dynamics episodes whose ids appear in the reward data (host-side)."""
     ids = np.unique(np.asarray(reward_data.episode_ids))
     per, _ = odata.episode_statistics(dynamics)
@@ -155,7 +155,7 @@ def _make_bc(dynamics: odata.Dataset, config: BCConfig,
     if config.data == "reward_episodes":
         if reward_data is None:
             raise ValueError("BCConfig.data='reward_episodes' needs reward_data")
-        dynamics = _reward_episodes(odata.validate(dynamics, name="dynamics"),
+        dynamics = reward_episodes(odata.validate(dynamics, name="dynamics"),
                                     validate_reward_data(reward_data))
     elif reward_data is not None:
         raise ValueError("BC with data='all' uses no reward data; pass reward_data=None (or "
@@ -233,4 +233,5 @@ def make_train(dynamics: odata.Dataset, config: BCConfig | BCOConfig = BCConfig(
     raise ValueError(f"config must be a BCConfig or a BCOConfig, got {type(config).__name__}")
 
 
-__all__ = ["BC_DATA", "BCConfig", "BCOConfig", "BCOState", "BCState", "bc_loss", "make_train"]
+__all__ = ["BC_DATA", "BCConfig", "BCOConfig", "BCOState", "BCState", "bc_loss", "make_train",
+           "reward_episodes"]

@@ -1,0 +1,214 @@
+"""Learner × scenario × dataset experiments (thesis §7.4, Table 7.3): one place that knows which
+learner reads which data, shared by ``scripts/train_offline.py`` and ``scripts/reproduce_ch7.py``.
+
+**Learners** (:data:`LEARNERS`) and the data each one trains on in a PLfO scenario
+``(D_A, D_R)`` (:func:`offline.scenarios.make`):
+
+==========  ==============================================================================
+MAHALO      ``D_A`` and ``D_R``: Algorithm 3 (:mod:`offline.mahalo`)
+RP          reward network fitted on ``D_R``, frozen, labels ``D_A``; ATAC
+AP          inverse-dynamics model fitted on ``D_A`` labels ``D_R``'s missing actions; ATAC on
+            the labelled ``D_R`` only (§7.4 "runs ATAC on the reward dataset"). The inverse
+            model is trained once per cell (key ``inverse_seed``) and shared by the seeds.
+UDS         ATAC on ``D_A``, shared transitions keep their labels, the rest ``r_min``
+            (IL, RL-expert, RL-sample only)
+ATAC        ATAC on the data with both actions and rewards — ``D_A``'s transitions that are in
+            ``D_R`` with ``D_R``'s rewards (Table 7.3's "ATAC†"; IL, RL-expert, RL-sample only)
+BCO         inverse-dynamics labels for ``D_R``, then BC (:mod:`offline.bc`)
+BC          BC of ``D_R``'s episodes where they have actions (IL, RL-expert, RL-sample),
+            otherwise of all of ``D_A``
+Oracle      ATAC with the true rewards of all of ``D_A`` (privileged)
+PSPI, IQL,  on a plain dataset with its own rewards (no scenario): ``learner(dataset)``; in a
+CQL        scenario they behave as Oracle does (true rewards of ``D_A``)
+==========  ==============================================================================
+
+**Budgets.** ATAC's published schedule is 1 M steps with a 100 k-step BC warm start and an actor
+rate of 5e-7 (ANCHOR_FACTS §5). :func:`atac_config` shortens it to ``steps`` with the warm start
+at the same 10 % and the actor rate scaled by ``1e6 / steps`` so that the product (how far the
+slow actor can move) is unchanged; every other rate stays. BC, BCO, the inverse model and RP's
+reward regression get ``steps`` steps too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import jax
+import numpy as np
+
+from offline import atac, bc, cql, iql, mahalo, plfo_baselines, scenarios
+from offline import data as odata
+from offline.inverse_dynamics import InverseDynamicsConfig, label_actions, make_inverse_dynamics
+from offline.learner import Trainer
+
+#: Learners of the chapter-7 table, in its column order (thesis Table 7.3, without SMODICE).
+TABLE_LEARNERS = ("MAHALO", "RP", "AP", "UDS", "ATAC", "BCO", "BC", "Oracle")
+#: Every learner this module builds.
+LEARNERS = (*TABLE_LEARNERS, "PSPI", "IQL", "CQL")
+#: Learners that need action-labelled reward data (a reward dataset overlapping ``D_A``).
+NEEDS_SHARED = ("UDS", "ATAC")
+#: ATAC's published length and actor rate (ANCHOR_FACTS §5).
+REFERENCE_STEPS = 1_000_000
+REFERENCE_ACTOR_LR = 5e-7
+
+
+@dataclasses.dataclass(frozen=True)
+class Budget:
+    """Size of one training run: ``steps`` gradient steps, MLP ``hidden`` sizes, ``batch``."""
+
+    steps: int = REFERENCE_STEPS
+    hidden: tuple[int, ...] = (256, 256, 256)
+    batch: int = 256
+    inverse_seed: int = 12345
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "hidden", tuple(self.hidden))
+        if not (isinstance(self.steps, int) and self.steps >= 10):
+            raise ValueError(f"steps must be an integer >= 10, got {self.steps!r}")
+        if not self.hidden or any(not isinstance(h, int) or h < 1 for h in self.hidden):
+            raise ValueError(f"hidden must be positive integers, got {self.hidden!r}")
+        if not (isinstance(self.batch, int) and self.batch >= 1):
+            raise ValueError(f"batch must be a positive integer, got {self.batch!r}")
+
+
+def atac_config(budget: Budget, **overrides: Any) -> atac.ATACConfig:
+    """ATAC's settings shortened to ``budget.steps`` (module docstring: warm start 10 %,
+    actor rate × ``1e6 / steps``)."""
+    kw = dict(hidden_sizes=budget.hidden, batch_size=budget.batch, num_steps=budget.steps,
+              warmstart_steps=budget.steps // 10,
+              actor_lr=REFERENCE_ACTOR_LR * REFERENCE_STEPS / budget.steps)
+    kw.update(overrides)
+    return atac.ATACConfig(**kw)
+
+
+def applicable(learner: str, scenario: str | None) -> bool:
+    """Whether ``learner`` has data to train on in ``scenario`` (None: a plain dataset)."""
+    if learner not in LEARNERS:
+        raise ValueError(f"unknown learner={learner!r}; valid names are {list(LEARNERS)}")
+    if scenario is None:
+        return learner in ("Oracle", "PSPI", "IQL", "CQL", "BC")
+    if scenario not in scenarios.SCENARIOS:
+        raise ValueError(f"unknown scenario={scenario!r}; valid scenarios are "
+                         f"{list(scenarios.SCENARIOS)}")
+    return not (learner in NEEDS_SHARED and scenario in ("ILfO", "RLfO"))
+
+
+def labelled_transitions(dynamics: odata.Dataset, reward_data: scenarios.RewardData
+                         ) -> odata.Dataset:
+    """The transitions that have both actions and rewards: ``D_A``'s episodes that are in
+    ``D_R``, with ``D_R``'s rewards (host-side; raises when they share none)."""
+    shared = bc.reward_episodes(dynamics, reward_data)
+    out = plfo_baselines.uds_relabel(shared, reward_data, min_reward=0.0)
+    if out.metadata["uds"]["labelled"] != out.size:
+        raise ValueError(f"only {out.metadata['uds']['labelled']} of the {out.size} transitions "
+                         f"of the shared episodes are in the reward data")
+    return out
+
+
+def inverse_labelled(dynamics: odata.Dataset, reward_data: scenarios.RewardData,
+                     budget: Budget) -> odata.Dataset:
+    """``D_R`` with actions predicted by an inverse-dynamics model fitted on ``D_A``
+    (``budget.steps`` steps, key ``budget.inverse_seed``) — AP's dataset."""
+    trainer = make_inverse_dynamics(dynamics, InverseDynamicsConfig(
+        hidden_sizes=budget.hidden, batch_size=budget.batch, num_steps=budget.steps))
+    state, _ = jax.jit(trainer.train)(jax.random.PRNGKey(budget.inverse_seed))
+    labelled = label_actions(trainer.model(state), reward_data)
+    return jax.tree.map(np.asarray, labelled)
+
+
+def build(learner: str, dynamics: odata.Dataset, reward_data: scenarios.RewardData | None,
+          budget: Budget, scenario: str | None = None) -> Trainer:
+    """The :class:`~offline.learner.Trainer` of ``learner`` on a scenario's data (module
+    docstring), or on a plain dataset when ``reward_data`` is None."""
+    if not applicable(learner, scenario):
+        raise ValueError(f"{learner} has no data to train on in scenario {scenario!r}: it needs "
+                         f"reward data with actions (IL, RL-expert, RL-sample)")
+    if (reward_data is None) != (scenario is None):
+        raise ValueError("pass reward_data exactly when a scenario is named")
+    cfg = atac_config(budget)
+    net = dict(hidden_sizes=budget.hidden, batch_size=budget.batch)
+    if learner == "MAHALO":
+        return mahalo.make_train(dynamics, mahalo.MAHALOConfig(
+            atac=atac_config(budget, beta=10.0),
+            reward=mahalo.RewardNetConfig(hidden_sizes=budget.hidden, batch_size=budget.batch,
+                                          max_reward_label=scenario in ("ILfO", "IL"))),
+            reward_data=reward_data)
+    if learner == "RP":
+        return plfo_baselines.make_train_rp(dynamics, plfo_baselines.RPConfig(
+            atac=cfg, reward=mahalo.RewardNetConfig(
+                hidden_sizes=budget.hidden, batch_size=budget.batch,
+                max_reward_label=scenario in ("ILfO", "IL")),
+            reward_steps=budget.steps), reward_data=reward_data)
+    if learner == "AP":
+        return atac.make_train(inverse_labelled(dynamics, reward_data, budget), cfg)
+    if learner == "UDS":
+        return plfo_baselines.make_train_uds(dynamics, plfo_baselines.UDSConfig(atac=cfg),
+                                             reward_data=reward_data)
+    if learner == "ATAC":
+        return atac.make_train(labelled_transitions(dynamics, reward_data), cfg)
+    bc_cfg = bc.BCConfig(num_steps=budget.steps, **net)
+    if learner == "BCO":
+        return bc.make_train(dynamics, bc.BCOConfig(bc=bc_cfg, inverse=InverseDynamicsConfig(
+            num_steps=budget.steps, **net)), reward_data=reward_data)
+    if learner == "BC":
+        if scenario in ("IL", "RL-expert", "RL-sample"):
+            return bc.make_train(dynamics, dataclasses.replace(bc_cfg, data="reward_episodes"),
+                                 reward_data=reward_data)
+        return bc.make_train(dynamics, bc_cfg)
+    if learner == "Oracle":
+        return plfo_baselines.make_train_oracle(dynamics, cfg)
+    plain = dynamics.replace(metadata=dynamics.metadata.updated(rewards_visible=True))
+    if learner == "PSPI":
+        return atac.make_train(plain, atac_config(budget, pessimism="absolute"))
+    if learner == "IQL":
+        return iql.make_train(plain, iql.IQLConfig(num_steps=budget.steps, **net))
+    return cql.make_train(plain, cql.CQLConfig(num_steps=budget.steps, **net))
+
+
+def train_chunked(trainer: Trainer, keys: jax.Array, chunk: int,
+                  on_chunk: Callable[[Any, dict, int], None] | None = None,
+                  state: Any = None, start: int = 0) -> tuple[Any, dict[str, np.ndarray]]:
+    """Train the seeds ``keys`` (vmapped) for ``trainer.num_steps`` steps in compiled chunks
+    of ``chunk`` steps (the last one shorter), from ``state`` at step ``start`` (default: a fresh
+    ``init``). After each chunk ``on_chunk(state, chunk_metrics, steps_done)`` is called (progress,
+    logging, checkpoints). Returns the final state and the per-chunk means of every metric,
+    shape ``(chunks, seeds)``."""
+    if not (isinstance(chunk, int) and chunk >= 1):
+        raise ValueError(f"chunk must be a positive integer, got {chunk!r}")
+    if state is None:
+        state = jax.jit(jax.vmap(trainer.init))(keys)
+    run = jax.jit(jax.vmap(trainer.run, in_axes=(0, None)), static_argnums=1)
+    history: dict[str, list] = {}
+    done = start
+    while done < trainer.num_steps:
+        n = min(chunk, trainer.num_steps - done)
+        state, metrics = run(state, n)
+        done += n
+        means = {k: np.asarray(jax.numpy.mean(v, axis=1)) for k, v in metrics.items()}
+        for k, v in means.items():
+            history.setdefault(k, []).append(v)
+        if on_chunk is not None:
+            on_chunk(state, means, done)
+    return state, {k: np.stack(v) for k, v in history.items()}
+
+
+def seed_keys(seeds: Sequence[int]) -> jax.Array:
+    """One PRNG key per seed (``PRNGKey(seed)``), stacked for ``vmap``."""
+    return jax.numpy.stack([jax.random.PRNGKey(int(s)) for s in seeds])
+
+
+__all__ = [
+    "LEARNERS",
+    "NEEDS_SHARED",
+    "TABLE_LEARNERS",
+    "Budget",
+    "applicable",
+    "atac_config",
+    "build",
+    "inverse_labelled",
+    "labelled_transitions",
+    "seed_keys",
+    "train_chunked",
+]
