@@ -62,6 +62,7 @@ step unstable. Rollouts integrate ``q ← q + dt·clip(q̇, ±q̇_max)`` in one 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -92,6 +93,7 @@ __all__ = [
     "StrategyConfig",
     "StrategyResult",
     "execution_config",
+    "fold_trainer",
     "fold_weights",
     "init_params",
     "latent_leaves",
@@ -193,9 +195,9 @@ class StrategyConfig:
 
     @classmethod
     def tiny(cls, strategy: str = "joint", **overrides: Any) -> StrategyConfig:
-        """Seconds-scale preset for tests: 2 layers × 8 features, metric ``(8,)``, 30 + 10
-        iterations at learning rate ``1e-2``."""
-        base: dict[str, Any] = dict(num_layers=2, num_features=8, metric_hidden=(8,),
+        """Seconds-scale preset for tests: 1 coupling layer of 8 features, metric ``(8,)``,
+        30 + 10 iterations at learning rate ``1e-2``."""
+        base: dict[str, Any] = dict(num_layers=1, num_features=8, metric_hidden=(8,),
                                     learning_rate=1e-2, metric_learning_rate=1e-2,
                                     smooth_l1_beta=0.1, flow_iterations=30, metric_iterations=10)
         base.update(overrides)
@@ -497,6 +499,21 @@ def make_train(config: StrategyConfig) -> Callable[[jax.Array, Samples], Strateg
         return StrategyResult(out, constants, jnp.mean(fl, axis=0), jnp.mean(ml, axis=0))
 
     return train
+
+
+@functools.lru_cache(maxsize=16)
+def fold_trainer(config: StrategyConfig) -> Callable[[jax.Array, Samples, jax.Array],
+                                                     StrategyResult]:
+    """``train(keys (F, 2), samples, weights (F, S)) -> StrategyResult`` (leaves with a leading
+    ``F``): :func:`make_train` jitted and ``vmap``-ped over keys and sample weights (seeds and/or
+    demonstration subsets, e.g. leave-one-out folds), cached per configuration so that every
+    caller with the same configuration and array shapes shares one compiled program."""
+
+    def train(keys: jax.Array, samples: Samples, weights: jax.Array) -> StrategyResult:
+        return jax.vmap(make_train(config), in_axes=(0, Samples(None, None, None, None, 0)))(
+            keys, samples._replace(w=weights))
+
+    return jax.jit(train)
 
 
 # ---------------------------------------------------------------------------------------------

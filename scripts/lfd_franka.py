@@ -102,11 +102,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--out", default="results/lfd_franka")
     p.add_argument("--figures", default="docs/figures")
     p.add_argument("--quick", action="store_true",
-                   help="tests: tiny preset, 1 fold, 1 start, drawer task, joint strategy, "
+                   help="tests: tiny preset, 2 folds, 1 start, drawer task, joint strategy, "
                         "dt 0.5 s")
     args = p.parse_args(argv)
     if args.quick:
-        args.preset, args.folds, args.num_starts = "tiny", 1, 1
+        args.preset, args.folds, args.num_starts = "tiny", 2, 1
         if args.tasks == list(franka_demos.TASKS):
             args.tasks = ["drawer_closing"]
         if args.strategies == list(L.STRATEGIES):
@@ -190,9 +190,8 @@ def run_strategy(args, cfg, stacked, demos, folds, starts, obstacle_centers, hor
     train_sets = jnp.asarray([[j != f for j in range(N)] for f in folds])
     W = jax.vmap(lambda tr: L.fold_weights(stacked.mask, tr))(train_sets)
     keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(args.seed), f) for f in folds])
-    train = jax.jit(jax.vmap(L.make_train(cfg), in_axes=(0, L.Samples(None, None, None, None, 0))))
     t0 = time.time()
-    result = jax.block_until_ready(train(keys, samples._replace(w=W)))
+    result = jax.block_until_ready(L.fold_trainer(cfg)(keys, samples, W))
     train_s = time.time() - t0
     log(f"    trained {F} folds in {train_s:.1f} s; final losses flow "
         f"{np.asarray(result.flow_losses[:, -1]).mean():.4g}"

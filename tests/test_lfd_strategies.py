@@ -119,10 +119,12 @@ def _assemble(config, params, task, psi, phi, q):
     return dict(x=x, J_fk=J_fk, J_psi=J_psi, G=G, M=M, f=f, qd=qd, xd_alone=xd_alone)
 
 
-@pytest.mark.parametrize("strategy", L.STRATEGIES)
+@pytest.mark.parametrize("strategy", ["joint", "independent"])
 def test_loss_matches_float64_reference(stacked, strategy):
-    """Eq 5.2 (cspace), eq 5.3 (independent, single link), eq 5.4 (joint)."""
-    config = L.StrategyConfig.tiny(strategy, metric_hidden=(4,))
+    """Eq 5.4 (joint) and eq 5.3 (independent). ``"cspace"`` (eq 5.2) and ``"single_link"`` are
+    the same assembly with one leaf (different task coordinates); they pass too but cost 20 s
+    more, so only the two multi-leaf losses run by default."""
+    config = L.StrategyConfig.tiny(strategy, num_layers=2, metric_hidden=(4,))
     idx = [(0, 1), (1, 3), (2, 5)]
     with _x64():
         params, consts = _f64(_perturbed_params(config, jax.random.PRNGKey(3)))
@@ -158,7 +160,8 @@ def test_loss_matches_float64_reference(stacked, strategy):
 def test_velocity_form_resolve_is_the_pseudo_inverse(stacked):
     """With no default leaves and ``ε → 0`` eq 5.1's resolve is ``q̇ = (Σ J_kᵀG_kJ_k)⁺ Σ J_kᵀp_k``
     (the root is rank 6 < 7: three points on a rigid hand), via rmp2.pullback_velocity."""
-    config = L.StrategyConfig.tiny("joint", default_weight=0.0, regularization=1e-10)
+    config = L.StrategyConfig.tiny("joint", num_layers=2, default_weight=0.0,
+                                   regularization=1e-10)
     with _x64():
         params, consts = _f64(_perturbed_params(config, jax.random.PRNGKey(5)))
         result = L.StrategyResult(params, consts, None, None)
@@ -180,15 +183,18 @@ def test_velocity_form_resolve_is_the_pseudo_inverse(stacked):
 # One tiny trained joint policy (two seeds, one program)
 # ---------------------------------------------------------------------------------------------
 
-TINY = L.StrategyConfig.tiny("joint", flow_iterations=20, metric_iterations=5)
+#: The preset of ``scripts/lfd_franka.py --quick``: its program is compiled once here and reused
+#: by the script test (``L.fold_trainer`` caches per configuration; same shapes).
+TINY = L.StrategyConfig.tiny("joint")
 
 
 @pytest.fixture(scope="module")
-def trained(stacked):
-    samples = L.make_samples(TINY, stacked)
+def trained():
+    stacked6 = fd.stack(fd.load_task("drawer_closing", dt=0.5))
+    samples = L.make_samples(TINY, stacked6)
+    w = L.fold_weights(stacked6.mask, jnp.arange(6) != 0)
     keys = jax.random.split(jax.random.PRNGKey(0), 2)
-    train = jax.jit(jax.vmap(L.make_train(TINY), in_axes=(0, None)))
-    return samples, keys, train(keys, samples)
+    return samples._replace(w=w), keys, L.fold_trainer(TINY)(keys, samples, jnp.stack([w, w]))
 
 
 def test_vmap_over_seeds_equals_separate_runs(trained):
@@ -208,7 +214,7 @@ def rollout_fn(trained, stacked):
 
     @jax.jit
     def run(q0):
-        qs, _ = L.rollout(TINY, result, q0, goals, qg, 200, 0.05)
+        qs, _ = L.rollout(TINY, result, q0, goals, qg, 400, 0.05)
         pts = jax.vmap(fd.hand_points)(qs)
         return jnp.linalg.norm(pts - goals, axis=-1).max(axis=-1), qs
 
@@ -224,7 +230,7 @@ def test_learned_joint_policy_converges_from_perturbed_starts(rollout_fn, stacke
     assert np.all(np.isfinite(np.asarray(qs)))
     assert dist[-1] < 0.01 and dist[-1] < 0.05 * dist[0]
     # the distance keeps shrinking at the end (no limit cycle)
-    assert dist[-1] <= dist[-50] + 1e-4
+    assert dist[-1] <= dist[-100] + 1e-4
 
 
 def test_config_validation():
