@@ -1,0 +1,179 @@
+"""Train one offline learner on one dataset or PLfO scenario, several seeds vmapped, then score it
+in the MJX environment.
+
+::
+
+    python scripts/train_offline.py --learner MAHALO --env three_link/env3 --scenario ILfO
+    python scripts/train_offline.py --learner IQL --dataset data/env3_mixed.npz --steps 100000
+    python scripts/train_offline.py ... --resume          # continue from the last checkpoint
+
+Data: ``--dataset`` (a file written by ``scripts/collect.py``; its environment is read from the
+file) or, without it, a ``--recipe`` dataset of ``--scale`` episodes per source collected on
+``--env`` (default ``mixed``). PLfO scenarios (``--scenario ILfO|IL|RLfO|RL-expert|RL-sample``)
+also need expert data: ``--expert`` or an ``expert`` recipe collected the same way. Without a
+scenario the learner reads the dataset's own rewards (``Oracle``/``PSPI``/``IQL``/``CQL``/``BC``).
+Learners and what each reads: :mod:`offline.experiment`.
+
+Writes to ``--out``: ``metrics.csv`` (per chunk: steps, seed, every training metric),
+``checkpoints/`` (orbax, every chunk; ``--resume`` continues from the newest and refuses one of
+another learner, scenario or configuration), and ``result.json`` (the configuration, wall
+times and the evaluation: mean return, normalised score — random 0, expert 100 —, safe % and
+success % per seed). A progress bar shows steps, losses and the ETA.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+import mjxrmp  # noqa: F401  (sets the XLA:CPU flag before JAX initialises)
+
+# isort: split
+import jax
+import numpy as np
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    from offline.experiment import LEARNERS
+    from offline.scenarios import SCENARIOS
+
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--learner", required=True, choices=LEARNERS)
+    p.add_argument("--scenario", default=None, choices=SCENARIOS)
+    p.add_argument("--dataset", type=Path, default=None, help="dataset file (scripts/collect.py)")
+    p.add_argument("--expert", type=Path, default=None, help="expert dataset file (scenarios)")
+    p.add_argument("--env", default="three_link/env3",
+                   help="environment to collect on when no --dataset is given")
+    p.add_argument("--recipe", default="mixed", help="recipe collected without --dataset")
+    p.add_argument("--scale", type=int, default=8, help="episodes per source when collecting")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    p.add_argument("--steps", type=int, default=2000, help="gradient steps")
+    p.add_argument("--hidden", type=int, nargs="+", default=[256, 256, 256])
+    p.add_argument("--batch", type=int, default=256)
+    p.add_argument("--chunk", type=int, default=500, help="steps per compiled call/checkpoint")
+    p.add_argument("--eval-episodes", type=int, default=32)
+    p.add_argument("--remove-terminals", action="store_true")
+    p.add_argument("--data-seed", type=int, default=0)
+    p.add_argument("--out", type=Path, default=Path("runs/offline"))
+    p.add_argument("--resume", action="store_true")
+    p.add_argument("--no-progress", action="store_true")
+    args = p.parse_args(argv)
+    for name in ("scale", "steps", "batch", "chunk", "eval_episodes"):
+        if getattr(args, name) < 1:
+            p.error(f"--{name.replace('_', '-')} must be a positive integer")
+    for path in (args.dataset, args.expert):
+        if path is not None and not path.exists():
+            p.error(f"dataset file {path} does not exist")
+    if args.expert is not None and args.scenario is None:
+        p.error("--expert is only used with --scenario")
+    return args
+
+
+def load_data(args):
+    """``(env_name, dynamics, reward_data)``: the dataset (or scenario pair) of the run."""
+    import warnings
+
+    from offline import collect, scenarios
+    from offline import data as odata
+
+    def get(path, recipe):
+        if path is not None:
+            return odata.load(path)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # the documented no-PPO fallback
+            return collect.collect_recipe(args.env, recipe, args.scale, seed=args.data_seed)
+
+    data = get(args.dataset, args.recipe)
+    env = data.metadata.get("env", args.env)
+    if args.scenario is None:
+        if args.remove_terminals:
+            data = scenarios.terminals_as_timeouts(data)
+        return env, data, None
+    expert = get(args.expert, "expert")
+    if expert.metadata.get("env", env) != env:
+        raise SystemExit(f"--expert was collected on {expert.metadata.get('env')!r}, the "
+                         f"dataset on {env!r}")
+    dyn, rd = scenarios.make(args.scenario, data, expert,
+                             key=jax.random.PRNGKey(args.data_seed),
+                             keep_terminals=not args.remove_terminals)
+    return env, dyn, rd
+
+
+def main(argv: Sequence[str] | None = None) -> dict:
+    """Train, checkpoint, evaluate; return the result dictionary."""
+    from agents import checkpoint
+    from agents.training import ProgressBar
+    from offline import evaluate, experiment
+    from offline.learner import actor_params
+
+    args = parse_args(argv)
+    t_start = time.perf_counter()
+    env, dyn, rd = load_data(args)
+    budget = experiment.Budget(steps=args.steps, hidden=tuple(args.hidden), batch=args.batch)
+    trainer = experiment.build(args.learner, dyn, rd, budget, args.scenario)
+    keys = experiment.seed_keys(args.seeds)
+    meta = {"learner": args.learner, "scenario": args.scenario, "env": env,
+            "seeds": list(args.seeds), "steps": args.steps, "hidden": list(args.hidden),
+            "batch": args.batch, "remove_terminals": args.remove_terminals,
+            "dynamics_transitions": int(dyn.size)}
+    ckpt_dir = args.out / "checkpoints"
+    state, start = None, 0
+    if args.resume and checkpoint.latest_step(ckpt_dir) is not None:
+        template = jax.eval_shape(jax.vmap(trainer.init), keys)
+        state, saved = checkpoint.restore(ckpt_dir, template, expected=meta)
+        start = int(saved["step"])
+        print(f"resumed from step {start} of {ckpt_dir}", file=sys.stderr)
+    elif args.out.exists() and checkpoint.latest_step(ckpt_dir) is not None:
+        raise SystemExit(f"{args.out} already holds a run; pass --resume or another --out")
+    args.out.mkdir(parents=True, exist_ok=True)
+    bar = None if args.no_progress else ProgressBar(args.steps)
+    csv_path = args.out / "metrics.csv"
+    if start == 0 and csv_path.exists():
+        csv_path.unlink()
+    t_train = time.perf_counter()
+
+    def on_chunk(st, means, done):
+        new = not csv_path.exists()
+        with open(csv_path, "a", newline="") as f:
+            w = csv.writer(f)
+            if new:
+                w.writerow(["steps", "seed", *means])
+            for i, seed in enumerate(args.seeds):
+                w.writerow([done, seed, *(f"{float(v[i]):.6g}" for v in means.values())])
+        checkpoint.save(ckpt_dir, done, st, meta)
+        if bar is not None:
+            losses = [f"{k} {float(np.mean(v)):.3g}" for k, v in means.items() if "loss" in k]
+            bar.update(done, " ".join(losses[:3]))
+
+    state, _ = experiment.train_chunked(trainer, keys, args.chunk, on_chunk, state=state,
+                                        start=start)
+    if bar is not None:
+        bar.close()
+    train_s = time.perf_counter() - t_train
+    evaluator = evaluate.make_evaluator(env, args.eval_episodes)
+    ev = jax.vmap(lambda p: evaluator.evaluate(trainer.act, p, jax.random.PRNGKey(10_000)))(
+        actor_params(state))
+    result = {**meta, "train_s": train_s, "wall_s": time.perf_counter() - t_start,
+              "device": jax.devices()[0].device_kind, "reference": evaluator.reference,
+              **{k: np.asarray(v, np.float64).tolist() for k, v in ev.items()}}
+    tmp = args.out / "result.json.tmp"
+    tmp.write_text(json.dumps(result, indent=1) + "\n")
+    tmp.replace(args.out / "result.json")
+    score = np.asarray(result["normalized_score"])
+    print(f"{args.learner} on {env} ({args.scenario or 'dataset rewards'}), seeds {args.seeds}: "
+          f"normalised score {score.mean():.1f} (per seed {np.round(score, 1).tolist()}), "
+          f"safe {np.mean(result['safe_pct']):.1f} %, success "
+          f"{np.mean(result['success_pct']):.1f} %; train {train_s:.0f} s → {args.out}")
+    return result
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,130 @@
+"""offline.experiment: which learner reads which data per PLfO scenario, the shortened ATAC
+schedule, chunked training; and the offline scripts' table rule and bad-input handling."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from offline import data as odata
+from offline import experiment, scenarios
+
+META = {"env": "three_link/env3", "action_limit": 1.0, "reward_range": [-1.0, 1.0]}
+
+
+def _episodes(rng: np.random.Generator, n_episodes: int, length: int, reward: float,
+              first_id: int = 0) -> odata.Dataset:
+    n = n_episodes * length
+    obs = rng.normal(size=(n, 3)).astype(np.float32)
+    ids = np.repeat(np.arange(first_id, first_id + n_episodes), length)
+    timeouts = np.tile(np.arange(length) == length - 1, n_episodes)
+    return odata.create(obs, rng.uniform(-1, 1, (n, 2)).astype(np.float32),
+                        np.full(n, reward, np.float32), obs + 0.1, np.zeros(n, bool), timeouts,
+                        ids, META)
+
+
+@pytest.fixture(scope="module")
+def data():
+    rng = np.random.default_rng(0)
+    return _episodes(rng, 6, 5, -0.5), _episodes(rng, 2, 5, 0.7)
+
+
+def test_applicability_matrix():
+    for scenario in scenarios.SCENARIOS:
+        for learner in experiment.TABLE_LEARNERS:
+            expected = not (learner in ("UDS", "ATAC") and scenario in ("ILfO", "RLfO"))
+            assert experiment.applicable(learner, scenario) == expected, (learner, scenario)
+    assert experiment.applicable("IQL", None) and not experiment.applicable("MAHALO", None)
+    with pytest.raises(ValueError, match="valid names"):
+        experiment.applicable("GAIL", "IL")
+    with pytest.raises(ValueError, match="valid scenarios"):
+        experiment.applicable("BC", "IRL")
+
+
+def test_shortened_atac_schedule_keeps_the_actor_budget():
+    for steps in (10_000, 200_000, 1_000_000):
+        cfg = experiment.atac_config(experiment.Budget(steps=steps))
+        assert cfg.num_steps == steps and cfg.warmstart_steps == steps // 10
+        assert cfg.actor_lr * steps == pytest.approx(5e-7 * 1_000_000)
+        assert cfg.critic_lr == 5e-4 and cfg.batch_size == 256
+    with pytest.raises(ValueError, match="steps"):
+        experiment.Budget(steps=3)
+
+
+@pytest.mark.parametrize("scenario", ["IL", "RL-expert", "RL-sample"])
+def test_labelled_transitions_are_the_shared_ones_with_reward_data_rewards(data, scenario):
+    mixed, expert = data
+    dyn, rd = scenarios.make(scenario, mixed, expert, key=jax.random.PRNGKey(3))
+    out = experiment.labelled_transitions(dyn, rd)
+    assert out.size == rd.size
+    np.testing.assert_array_equal(out.observations, rd.observations)
+    np.testing.assert_array_equal(out.next_observations, rd.next_observations)
+    np.testing.assert_array_equal(out.rewards, rd.rewards)
+    # the actions are the dynamics data's own for those transitions
+    rows = {o.tobytes(): a for o, a in zip(np.asarray(dyn.observations),
+                                          np.asarray(dyn.actions), strict=True)}
+    expected = np.stack([rows[o.tobytes()] for o in np.asarray(out.observations)])
+    np.testing.assert_array_equal(out.actions, expected)
+    if scenario == "IL":  # expert-only reward data is labelled with the maximum reward
+        assert np.all(np.asarray(out.rewards) == 1.0)
+
+
+def test_build_refuses_learners_without_data(data):
+    mixed, expert = data
+    dyn, rd = scenarios.make("ILfO", mixed, expert)
+    budget = experiment.Budget(steps=20, hidden=(8,), batch=4)
+    for learner in ("UDS", "ATAC"):
+        with pytest.raises(ValueError, match="no data to train on"):
+            experiment.build(learner, dyn, rd, budget, "ILfO")
+    with pytest.raises(ValueError, match="exactly when a scenario"):
+        experiment.build("BC", dyn, None, budget, "ILfO")
+
+
+def test_chunked_training_equals_one_call_and_reports_every_chunk(data):
+    mixed, expert = data
+    dyn, rd = scenarios.make("IL", mixed, expert)
+    trainer = experiment.build("BC", dyn, rd, experiment.Budget(steps=20, hidden=(8,), batch=4),
+                               "IL")
+    keys = experiment.seed_keys([0, 1])
+    seen = []
+    state, hist = experiment.train_chunked(trainer, keys, 10,
+                                           lambda s, m, done: seen.append(done))
+    assert seen == [10, 20]
+    assert all(v.shape == (2, 2) for v in hist.values())
+    ref, _ = jax.jit(jax.vmap(trainer.train))(keys)
+    for a, b in zip(jax.tree.leaves(state.params), jax.tree.leaves(ref.params), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+
+
+def test_ch7_table_bolds_entries_within_90_percent_of_the_best_non_oracle(tmp_path):
+    from scripts import reproduce_ch7
+
+    scores = {"MAHALO": [85, 91], "BC": [50, 52], "BCO": [95, 95], "Oracle": [200, 200]}
+    with open(tmp_path / "results.jsonl", "w") as f:
+        for learner, s in scores.items():
+            f.write(json.dumps({"env": "e", "scenario": "ILfO", "learner": learner,
+                                "normalized_score": s, "safe_pct": [100, 100]}) + "\n")
+    args = reproduce_ch7.parse_args(["--stage", "table", "--out", str(tmp_path)])
+    summary = reproduce_ch7.table_stage(args)
+    table = (tmp_path / "table.md").read_text()
+    assert "**88.0 ± 3.0**" in table and "**95.0 ± 0.0**" in table  # 88 >= 0.9 · 95
+    assert "51.0 ± 1.0 |" in table and "**51.0" not in table
+    assert "**200.0" not in table  # Oracle is never bold and not the reference
+    assert summary == {"cells": 1, "mahalo_within_90": 1,
+                       "mahalo_beats_bc_bco_ilfo": {"e": False}}
+
+
+def test_train_offline_refuses_bad_arguments(tmp_path, capsys):
+    from scripts import train_offline
+
+    for argv, msg in ((["--learner", "GAIL"], "invalid choice"),
+                      (["--learner", "BC", "--dataset", str(tmp_path / "nope.npz")],
+                       "does not exist"),
+                      (["--learner", "BC", "--steps", "0"], "positive integer"),
+                      (["--learner", "BC", "--expert", str(tmp_path)], "only used with")):
+        with pytest.raises(SystemExit):
+            train_offline.parse_args(argv)
+        assert msg in capsys.readouterr().err
