@@ -128,7 +128,10 @@ def main(argv: Sequence[str] | None = None) -> dict:
     state, start = None, 0
     if args.resume and checkpoint.latest_step(ckpt_dir) is not None:
         template = jax.eval_shape(jax.vmap(trainer.init), keys)
-        state, saved = checkpoint.restore(ckpt_dir, template, expected=meta)
+        try:
+            state, saved = checkpoint.restore(ckpt_dir, template, expected=meta)
+        except checkpoint.IncompatibleCheckpointError as err:
+            raise SystemExit(f"--resume: {err}") from None
         start = int(saved["step"])
         print(f"resumed from step {start} of {ckpt_dir}", file=sys.stderr)
     elif args.out.exists() and checkpoint.latest_step(ckpt_dir) is not None:
