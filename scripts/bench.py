@@ -419,7 +419,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--ppo-preset", default="thesis", help="PPO settings of the PPO rows")
     p.add_argument("--ppo-num-envs", type=int, default=None,
                    help="override the preset's num_envs (a larger batch for scaling runs)")
-    p.add_argument("--ppo-only", action="store_true", help="only the PPO rows")
+    p.add_argument("--ppo-only", action="store_true", help="only the PPO (and offline) rows")
+    p.add_argument("--offline", nargs="+", default=[], metavar="LEARNER",
+                   help="offline gradient-steps/s rows (scripts/bench_offline.py), e.g. atac")
+    p.add_argument("--offline-seeds", nargs="+", type=int, default=[1, 8],
+                   help="vmapped seed counts of the offline rows")
     args = p.parse_args(argv)
     if args.pin_cpu is not None:
         # Threads XLA creates later inherit this affinity: no hand-offs between cores.
@@ -541,9 +545,17 @@ def main(argv: Sequence[str] | None = None) -> dict:
                       f"device(s): {row['steps_per_s']:.3g} env steps/s, "
                       f"{row['iteration_s']:.3f} s/iteration, compile {row['compile_s']:.1f} s"
                       + (f", split {row['iteration_split_s']}" if n == 1 else ""), flush=True)
-        if args.ppo_only:
-            print(f"JSON: {path}", flush=True)
-            return result
+    if args.offline:
+        from scripts.bench_offline import measure as measure_offline
+
+        chunk = 10_000 if jax.default_backend() == "cpu" else 20_000
+        result["offline"] = [measure_offline(name, args.offline_seeds, 1000 if args.quick
+                                             else chunk, scale=2 if args.quick else 8)
+                             for name in args.offline]
+        _write(path, result)
+    if args.ppo_only:
+        print(f"JSON: {path}", flush=True)
+        return result
     key = jax.random.key(args.seed)
     plan = []
     for robot in args.robots:
