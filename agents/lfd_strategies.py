@@ -12,23 +12,31 @@ latent Riemannian metric ``(ψ_k, Φ̄, G_k)``:
   :class:`mjxrmp.learned.CholeskyMetric`, exactly ``I`` at initialisation).
 
 Leaf k is the velocity-form RMP ``(M_k, v_k) = (G_k, −G_k⁻¹∇Φ̄)`` (§5.3.1), i.e. the natural pair
-``(G_k, p_k = −γ y_k)``; the configuration-space policy is the velocity-form RMP² of eq 5.1,
+``(G_k, p_k = −γ y_k)``. As in §5.3.2 a hand-specified *default* leaf on each control point pulls
+it in a straight line to its goal: ``(w I, p = −w γ_d x_k)`` (a convex potential
+``½γ_d‖x_k‖²`` with the constant inertia ``w``, ``default_weight`` = 10 as in §5.3.2, ``γ_d`` =
+``default_gain``; ``w = 0`` removes it). The configuration-space policy is the velocity-form RMP²
+of eq 5.1,
 
-    q̇ = π_θ(q) = argmin_v Σ_k ½‖J_k v − v_k‖²_{G_k} = (Σ_k J_kᵀ G_k J_k + εI)⁻¹ Σ_k J_kᵀ p_k,   (*)
+    q̇ = π_θ(q) = argmin_v Σ_k ½‖J_k v − v_k‖²_{G_k} + ½‖J_{x,k} v − v_k^d‖²_{wI}
+        = (Σ_k J_kᵀ G_k J_k + w J_{x,k}ᵀ J_{x,k} + εI)⁻¹ Σ_k (J_kᵀ p_k − w γ_d J_{x,k}ᵀ x_k),   (*)
 
-``J_k = ∂ψ_k/∂q``, with the small diagonal offset ``ε`` (``regularization``, 0.02 as in §5.3.2) that
-keeps the root metric non-singular (three points on the rigid hand constrain at most 6 of the 7
-joints; one control point only 3). **Stability for every θ:** ``V(q) = Σ_k Φ̄(ψ_k(q))`` has
-``V̇ = (Σ J_kᵀ∇Φ̄_k)ᵀ q̇ = −fᵀ(M + εI)⁻¹f ≤ 0`` with ``f = Σ J_kᵀ p_k``; each ``ψ_k`` is a
+``J_k = ∂ψ_k/∂q``, ``J_{x,k} = ∂x_k/∂q``, with the small diagonal offset ``ε``
+(``regularization``, 0.02 as in §5.3.2) that keeps the root metric non-singular (three points on
+the rigid hand constrain at most 6 of the 7 joints; one control point only 3). The default leaves
+are part of the policy class during learning too (the joint strategy learns to bias against them,
+§5.3.2). **Stability for every θ:** ``V(q) = Σ_k [Φ̄(ψ_k(q)) + ½wγ_d‖x_k(q)‖²]`` has
+``V̇ = −fᵀ(M + εI)⁻¹f ≤ 0`` with ``f`` the right-hand side of (*) (``f = −∇V``); each ``ψ_k`` is a
 diffeomorphism of the control point with ``ψ_k = 0`` only at its goal.
 
 **Strategies** (:data:`STRATEGIES`), each a two-stage fit (ANCHOR_FACTS §6): stage 1 trains the
 flows with the latent metrics held at ``I``; stage 2 trains the metrics with the flows frozen.
-Every stage is one ``lax.scan`` of full-batch Adam steps (weight decay ``1e-8`` as an L2 term,
-§5.3.2), the whole fit one jittable function ``train(key, samples)`` that ``vmap``s over seeds
-and over demonstration subsets (the per-sample weights ``samples.w`` select the demonstrations,
-so leave-one-out folds share one array and differ only in ``w``). Losses are SmoothL1 (``β``)
-averaged over coordinates, leaves and (weighted) samples.
+Every stage is one ``lax.scan`` of Adam steps (weight decay ``1e-8`` as an L2 term, §5.3.2;
+full batch, or minibatches drawn ``∝ w`` with ``batch_size``), the whole fit one jittable
+function ``train(key, samples)`` that ``vmap``s over seeds and over demonstration subsets (the
+per-sample weights ``samples.w`` select the demonstrations, so leave-one-out folds share one
+array and differ only in ``w``). Losses are SmoothL1 (``β``) averaged over coordinates, leaves
+and (weighted) samples.
 
 * ``"cspace"`` — configuration-space regression (§5.1 eq 5.2): one leaf on ``x = q − q_g``
   (``J = ∂ψ/∂q`` square), loss ``SmoothL1(π_θ(q) − q̇_demo)`` — a *stable* flow DS in
@@ -37,10 +45,11 @@ averaged over coordinates, leaves and (weighted) samples.
 * ``"independent"`` — independent per-subtask learning (§5.1 eq 5.3, §5.2): each control point's
   leaf is fitted on its own, to reproduce that point's demonstrated velocity in its task space,
   ``ẋ_k = J_{φ_k}⁻¹ G_k⁻¹(−∇Φ̄(y_k))`` (the single-leaf solution of eq 5.1; eq 5.6 in the latent
-  coordinates); the leaves meet only at execution, through (*). The fits are ``vmap``-ped over the
-  leaves, so they are exactly independent.
+  coordinates); the leaves meet each other and the default leaves only at execution, through
+  (*). The fits are ``vmap``-ped over the leaves, so they are exactly independent.
 * ``"joint"`` — joint learning through the velocity-form RMP² (§5.1 eq 5.4, §5.3, eq 5.8):
-  ``mean_k SmoothL1(J_{FK,k}(π_θ(q) − q̇_demo))``, differentiating through the resolve (*).
+  ``mean_k SmoothL1(J_{FK,k}(π_θ(q) − q̇_demo))``, differentiating through the resolve (*)
+  (default leaves included, ``λ_k = 1``).
   ``J_{FK,k}`` is the task-space Jacobian of the control point (so errors are control-point
   velocities in m/s; eq 5.4 writes the subtask Jacobian, which would make the weighting depend
   on the learned flow).
@@ -530,13 +539,17 @@ def execution_config(obstacle_shape: str = "cylinder") -> policies.PolicyConfig:
 
 
 def _lifted(rmp_moving: RMP, rmp_still: RMP, h: float) -> RMP:
-    """Velocity-form pair ``(M(x, ẋ), M(x, ẋ)·h·a(x, 0))`` of an acceleration leaf (module
-    docstring); ``a(x, 0) = f/M`` of the leaf at rest (``0`` where that metric vanishes)."""
+    """Velocity-form pair ``(M(x, ẋ), M(x, ẋ)·h·a(x, 0))`` of a family of 1-D acceleration leaves
+    (module docstring); ``a(x, 0) = f/M`` of the leaf at rest (``0`` where that metric
+    vanishes)."""
     M, _ = rmp_moving
     M0, f0 = rmp_still
-    m0 = M0[..., 0, 0] if M0.shape[-1] == 1 else jnp.trace(M0, axis1=-2, axis2=-1)
-    a0 = jnp.where(m0[..., None] > 0, f0 / jnp.where(m0[..., None] > 0, m0[..., None], 1.0), 0.0)
-    return RMP(M, h * jnp.einsum("kab,kb->ka", M, a0))
+    if M.shape[-1] != 1:
+        raise ValueError(f"hand-designed execution leaves must be 1-D families (n, 1), got "
+                         f"M of shape {M.shape}")
+    m0 = M0[..., 0]
+    a0 = jnp.where(m0 > 0, f0 / jnp.where(m0 > 0, m0, 1.0), 0.0)
+    return RMP(M, h * M[..., 0] * a0)
 
 
 def policy_velocity(config: StrategyConfig, result: StrategyResult, q: jax.Array,

@@ -30,16 +30,18 @@ learning, joint learning through the velocity-form RMP², single-link learning):
   control points) and the cylinder — and avoided through the hand-designed collision RMP
   (§5.2.3); success then also requires no contact (exact distances > 0 for all 48 points).
 
-Every rollout runs the execution policy of :mod:`agents.lfd_strategies` (learned leaves + the
-hand-designed joint-limit and collision leaves in their velocity-form lift; the obstacle is
-switched off by its ``active`` flag when absent) with step ``--exec-dt``.
+Every rollout runs the execution policy of :mod:`agents.lfd_strategies` (learned leaves, the
+default straight-line leaves of §5.3.2, and the hand-designed joint-limit and collision leaves in
+their velocity-form lift; the obstacle is switched off by its ``active`` flag when absent) with
+step ``--exec-dt``.
 
 Writes ``metrics.json`` (per task and strategy: per-fold errors per control point, success
 counts, training time and final losses; the settings) and ``table.csv`` to ``--out``, and the
 figures ``lfd_franka_<task>.png`` (demonstrated vs reproduced control-point triangles and
 centre paths, 3-D, as Figs 5.1/5.4) and ``lfd_franka_errors.png`` (box plots of the errors and
-success rates per strategy, as Fig 5.7) to ``--figures``. Default (CPU preset, 2 tasks × 4
-strategies × 6 folds) takes about ten minutes on 2 CPU cores.
+success rates per strategy, as Fig 5.7) to ``--figures``. The default (CPU preset, 2 tasks × 4
+strategies × 6 folds) took 9.2 minutes on 2 CPU cores shared with other jobs (load ≈ 4.5);
+``--preset thesis`` uses the full model sizes and iteration counts (hours on a CPU).
 """
 
 from __future__ import annotations
