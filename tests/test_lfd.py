@@ -22,6 +22,8 @@ import mjxrmp  # noqa: F401  (XLA flags first)
 from agents.lfd import (
     FlowField,
     LfdConfig,
+    fast_cos,
+    fast_sin,
     finite_difference_velocities,
     latent_step,
     make_train,
@@ -264,6 +266,43 @@ def test_velocity_is_the_pulled_back_natural_gradient_float64(x64):
     got, ref = both(variables, x)
     assert got.dtype == jnp.float64
     np.testing.assert_allclose(np.asarray(got), np.asarray(ref), rtol=1e-9, atol=1e-12)
+
+
+def test_fast_cos_and_sin_match_numpy_float64():
+    u = np.concatenate([np.linspace(-60.0, 60.0, 200_001), [0.0, np.pi / 2, -np.pi, 1e3]])
+    u32 = jnp.asarray(u, jnp.float32)
+    ref = np.asarray(u32, np.float64)                   # the float32 arguments, exactly
+    cos, sin, dcos, dsin = jax.jit(lambda u: (
+        fast_cos(u), fast_sin(u), jax.vmap(jax.grad(fast_cos))(u),
+        jax.vmap(jax.grad(jax.grad(fast_sin)))(u)))(u32)
+    for got, want in ((cos, np.cos(ref)), (sin, np.sin(ref)), (dcos, -np.sin(ref)),
+                      (dsin, -np.sin(ref))):
+        np.testing.assert_allclose(np.asarray(got, np.float64), want, rtol=0, atol=2e-7)
+
+
+def test_fast_cos_field_equals_the_library_cos_field(trained, shape):
+    """``fast_cos`` changes the evaluation, not the model: velocity, latent map and inverse
+    agree with ``jnp.cos`` features to float32 rounding, and so do the loss gradients."""
+    exact = make_train(LfdConfig.tiny(fast_cos=False))
+    fast = make_train(LfdConfig.tiny())
+    x = jnp.asarray(_box_starts(shape, 256, 1.0, seed=5))
+    v = jnp.asarray(shape.velocities.reshape(-1, 2)[::6][:256], jnp.float32)
+    var = trained.variables
+
+    @functools.partial(jax.jit, static_argnums=0)
+    def evaluate(trainer, var, x, v):
+        fld = trainer.field
+
+        def loss(p):
+            return jnp.mean((fld.velocity({"params": p, "constants": var["constants"]}, x)
+                             - v) ** 2)
+        return (fld.velocity(var, x), fld.latent(var, x), fld.from_latent(var, x),
+                jax.grad(loss)(var["params"]))
+
+    for a, b in zip(jax.tree.leaves(evaluate(fast, var, x, v)),
+                    jax.tree.leaves(evaluate(exact, var, x, v)), strict=True):
+        scale = float(np.abs(np.asarray(b)).max())
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=0, atol=1e-5 * scale + 1e-7)
 
 
 def test_finite_difference_velocities_match_lasa(shape):
