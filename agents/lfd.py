@@ -60,7 +60,8 @@ have the same sizes)::
     trainer = make_train(config)              # dim=2
     result = jax.jit(trainer.train)(key, demos, velocities)       # demos (7, 235, 2)
     results = jax.jit(jax.vmap(trainer.train))(keys, D, V)        # shapes stacked: D (S, 7, 235, 2)
-    xs = rollout(trainer.field, result.variables, demos[:, 0], 234, dt)   # (7, 235, 2)
+    xs = rollout(trainer.field, result.variables, demos[:, 0], 234, dt, method="latent")
+    #    (7, 235, 2): in latent coordinates, monotone in ‖ψ‖ (see rollout)
 
 **Speed.** One full-batch epoch of the reference settings (10 coupling layers × 200 features,
 ``7 × 235`` samples) is dominated on XLA:CPU by the ``≈ 1.3·10⁷`` cosines and sines of the

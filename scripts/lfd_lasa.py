@@ -15,20 +15,33 @@ with it. Model and optimiser are :class:`agents.lfd.LfdConfig`'s defaults (ANCHO
 ``--iterations`` overrides the iteration budget (default 5000, early stop after 250 iterations
 without improvement), ``--tiny`` uses :meth:`LfdConfig.tiny` (tests).
 
-Writes to ``--out``:
+``--time-epochs N`` only times ``N`` full-batch training epochs on Sshape after compilation
+(acceptance 2; prints the median and the load average) and trains nothing.
 
-* ``<shape>.npz`` — ``demos (7, T, 2)``, ``rollouts (7, T, 2)`` (the learned field integrated
-  with explicit Euler and the demonstrations' ``dt`` from each demonstration's first sample, as
-  many samples as the demonstration), ``dt`` (scalar), ``losses`` (training loss per iteration);
-* ``metrics.json`` — per shape: :func:`mjxrmp.traj_metrics.all_metrics` between each rollout and
-  its demonstration (RMSE, mean error, DTW and DTW / warping-path length, Fréchet, final-point
-  error, swept error area), their means over demonstrations, the same for a straight-line
-  baseline (uniform speed from the demonstration's start to the goal over its duration), the
-  training summary, and a convergence check (rollouts from ``--check-starts`` uniform random
-  starts in the demonstrations' bounding box enlarged by 20 %, ``--check-steps`` Euler steps;
-  final distances to the goal; minimum speed on a grid of that box away from the goal; speed at
-  the goal). Lengths are in the normalised coordinates of :mod:`mjxrmp.data.lasa` (each shape's
-  demonstrations span 1 along each axis; goal at the origin);
+Rollouts use ``LfdConfig.integrator`` (default ``"latent"``, :func:`agents.lfd.rollout`):
+``y = ψ(x)`` moves straight to the origin without ever overshooting it and ``x = ψ⁻¹(y)`` with
+the flow's exact inverse, so ``‖ψ(x_k)‖`` is non-increasing for every start and step.
+
+Writes to ``--out`` (one folder: ``tar czf lasa.tgz -C DIR .``):
+
+* ``<shape>.npz`` — ``demos (7, T, 2)``, ``rollouts (7, T, 2)`` (the learned system from each
+  demonstration's first sample with the demonstrations' ``dt``, as many samples as the
+  demonstration), ``dt`` (scalar), ``losses`` (training loss per iteration);
+* ``metrics.json`` — per shape: :func:`mjxrmp.traj_metrics.all_metrics` between each rollout's
+  first ``T`` samples and its demonstration (RMSE, mean error, DTW and DTW / warping-path
+  length, Fréchet, final-point error, swept error area), their means over demonstrations, the
+  same for a straight-line baseline (uniform speed from the demonstration's start to the goal
+  over its duration), the training summary, the **converged** end points of the same rollouts
+  run on to ``--check-steps`` (default ``10·T``) steps (``final_error_converged``; acceptance:
+  below 1 % of the workspace, 0.01, since the normalised demonstrations span 1), and a
+  convergence check: rollouts from ``--check-starts`` uniform random starts in the
+  demonstrations' bounding box enlarged by 20 % for ``--check-steps`` steps — fraction within
+  ``--goal-radius`` of the goal, maximum final distance, count of non-finite rollouts (NaN/inf
+  anywhere counts as not converged, distance ``inf``), fraction of rollouts along which
+  ``‖ψ(x_k)‖`` (recomputed from the positions) is non-increasing — the minimum speed on a grid
+  of that box away from the goal and the speed at the goal; ``summary``: medians over shapes of
+  DTW / length and swept error area with one row per shape (also printed as a table). Lengths
+  are in the normalised coordinates of :mod:`mjxrmp.data.lasa` (goal at the origin);
 * ``<shape>_field.png`` — streamlines of the learned field with the demonstrations and the
   reproductions (as Fig 4.4); ``<shape>_potential.png`` — iso-contours of
   ``Φ(x) = ½‖φ(x) − φ(0)‖²`` with the demonstrations (as Fig 4.7).
@@ -253,7 +266,8 @@ def main(argv=None) -> dict:
     p.add_argument("--tiny", action="store_true", help="LfdConfig.tiny() (tests)")
     p.add_argument("--check-starts", type=int, default=64)
     p.add_argument("--check-steps", type=int, default=None,
-                   help="Euler steps of the convergence check (default 10·T)")
+                   help="rollout steps of the convergence check and of the converged "
+                        "demonstration rollouts (default 10·T)")
     p.add_argument("--goal-radius", type=float, default=0.05,
                    help="convergence radius of the check (normalised units)")
     p.add_argument("--no-figures", action="store_true")
