@@ -58,14 +58,21 @@ and (weighted) samples.
 
 **Execution** (:func:`policy_velocity`, :func:`rollout`): (*) evaluated by
 :func:`mjxrmp.rmp2.pullback_velocity` (Jacobians by forward-mode autodiff through FK and the
-flows), optionally with the hand-designed joint-limit and collision leaves of
-:mod:`mjxrmp.policies` added "at execution time" (§5.2.3). Those are acceleration-form leaves
-``(M_h(x, ẋ), f_h = M_h a_h(x, ẋ))``; in the velocity form each contributes its metric at the
-current leaf velocity ``ẋ = J q̇_prev`` (the previous command) and the desired velocity
-``h·a_h(x, 0)`` — one control step ``h`` of its damping-free (repulsive) acceleration:
-``p_h = M_h(x, ẋ)·h·a_h(x, 0)``. The damping terms of those leaves are not needed in a
-first-order system (velocities do not accumulate), and their stiffness would make an explicit
-step unstable. Rollouts integrate ``q ← q + dt·clip(q̇, ±q̇_max)`` in one ``lax.scan``.
+flows), optionally with hand-specified leaves added "at execution time" (§5.2.3), the same for
+every strategy (:class:`ExecutionParams`): a velocity-form joint-limit RMP (a barrier metric
+growing like ``1/s²`` within ``ℓ`` of a buffered limit and a repelling velocity), a
+configuration-space posture default leaf (§5.3.2), and the hand-designed collision leaves of
+:mod:`mjxrmp.policies`. Those are acceleration-form leaves ``(M_h(x, ẋ), f_h = M_h a_h(x, ẋ))``;
+in the velocity form each contributes its metric at the current leaf velocity ``ẋ = J q̇_prev``
+(the previous command) and the desired velocity ``h·a_h(x, 0)`` — one integration step ``h`` of
+its damping-free (repulsive) acceleration: ``p_h = M_h(x, ẋ)·h·a_h(x, 0)``. The damping terms of
+those leaves are not needed in a first-order system (velocities do not accumulate), and their
+stiffness would make an explicit step unstable. (The lifted acceleration-form joint-limit leaf
+used before was too weak at a 0.05 s step: its metric ``0.1/(s/0.01 + 0.001)`` is ~0.01 at
+0.1 rad from a limit, negligible against the learned and default leaves, and 73 of 126 door
+rollouts of the joint strategy left the limits.) Rollouts integrate
+``q ← q + h·clip(q̇, ±q̇_max)`` in one ``lax.scan`` (``ExecutionParams.substeps`` Euler steps
+of ``h = dt/substeps`` per control step ``dt``).
 """
 
 from __future__ import annotations
@@ -86,7 +93,7 @@ from mjxrmp.data.franka_demos import StackedDemos, hand_points
 from mjxrmp.flows import CONSTANTS, EuclideanizingFlow
 from mjxrmp.geometry import Obstacles
 from mjxrmp.learned import CholeskyMetric
-from mjxrmp.leaves import CollisionParams, JointLimitParams
+from mjxrmp.leaves import CollisionParams
 from mjxrmp.rmp import RMP
 from mjxrmp.robots import franka
 
@@ -98,6 +105,8 @@ DOF = franka.FRANKA.dof
 __all__ = [
     "INDEPENDENT_STRATEGIES",
     "STRATEGIES",
+    "Execution",
+    "ExecutionParams",
     "Samples",
     "StrategyConfig",
     "StrategyResult",
@@ -105,6 +114,8 @@ __all__ = [
     "fold_trainer",
     "fold_weights",
     "init_params",
+    "joint_limit_distances",
+    "joint_limit_leaf",
     "latent_leaves",
     "make_samples",
     "make_train",
@@ -194,11 +205,16 @@ class StrategyConfig:
         """CPU preset: flows of 4 layers × 32 features, metrics ``(32, 32)``, minibatches of 256,
         400 + 200 iterations at learning rates ``5e-3`` / ``2e-3`` (the thesis' ``1e-4`` needs
         thousands of iterations), SmoothL1 ``β = 0.1`` (velocities are ~0.1 m/s, so ``β = 1``
-        is a plain squared loss), gradient-norm clip 1."""
+        is a plain squared loss), gradient-norm clip 1, and weight decay ``1e-2`` (pulls the
+        flows towards the identity, i.e. towards the straight-line default, away from the data:
+        with the thesis' ``1e-8`` the joint strategy's learned potentials had spurious minima
+        that trapped 24 of 60 door rollouts started at the *training* demonstrations' starts
+        (exact and perturbed, all six folds); with ``1e-2`` none, same check)."""
         base: dict[str, Any] = dict(num_layers=4, num_features=32, metric_hidden=(32, 32),
                                     learning_rate=5e-3, metric_learning_rate=2e-3,
                                     smooth_l1_beta=0.1, max_grad_norm=1.0, batch_size=256,
-                                    flow_iterations=400, metric_iterations=200)
+                                    flow_iterations=400, metric_iterations=200,
+                                    weight_decay=1e-2)
         base.update(overrides)
         return cls(strategy=strategy, **base)
 
@@ -530,12 +546,92 @@ def fold_trainer(config: StrategyConfig) -> Callable[[jax.Array, Samples, jax.Ar
 # ---------------------------------------------------------------------------------------------
 
 
+@dataclasses.dataclass(frozen=True)
+class ExecutionParams:
+    """The hand-specified leaves added at execution time (§5.2.3: "additional hand-specified
+    joint limit RMPs, and obstacle avoidance RMPs"; §5.3.2: default subtask policies) in the
+    velocity form, and the integrator. Applied identically to every strategy.
+
+    * **Joint limits** (velocity form, on the buffered distances ``s = [q_u − q, q − q_l]`` of
+      :data:`mjxrmp.policies.FRANKA_JOINT_LIMIT_BUFFERS`, clipped ≥ 0): the barrier metric
+      ``m(s) = μ·(relu(1 − s/ℓ) / (s/ℓ + ε_j))²`` (zero farther than ``ℓ`` from a limit, growing
+      like ``1/s²`` near it) and the repelling velocity ``ṡ_d = v_r·relu(1 − s/ℓ)``. Each is a
+      function of one joint angle, so ``m(s)ṡ_d`` is the gradient of a 1-D potential and the
+      Lyapunov argument of the module docstring still holds; near a limit the resolve's ``ṡ``
+      is pulled towards ``ṡ_d ≥ 0`` with a weight that dominates every learned leaf.
+    * **Posture** (a configuration-space default leaf, §5.3.2): ``(w_c I, −w_c γ_c (q − q_p))``
+      towards a posture ``q_p`` (the scripts use the mean final configuration of the *training*
+      demonstrations), which fixes the hand's redundant joint and damps drift away from the data
+      (``w_c = 0`` removes it).
+    * ``substeps``: each control step ``dt`` is integrated by that many explicit Euler steps of
+      ``dt/substeps`` (the policy re-evaluated at each).
+    """
+
+    joint_limit_length: float = 0.25
+    joint_limit_scale: float = 1.0
+    joint_limit_eps: float = 0.01
+    joint_limit_speed: float = 0.5
+    posture_weight: float = 0.1
+    posture_gain: float = 0.5
+    substeps: int = 1
+
+    def __post_init__(self) -> None:
+        for name in ("joint_limit_length", "joint_limit_scale", "joint_limit_eps",
+                     "joint_limit_speed", "posture_gain"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                    and v > 0):
+                raise ValueError(f"ExecutionParams.{name} must be a finite number > 0, got {v!r}")
+        w = self.posture_weight
+        if not (isinstance(w, (int, float)) and not isinstance(w, bool) and math.isfinite(w)
+                and w >= 0):
+            raise ValueError(f"ExecutionParams.posture_weight must be a finite number >= 0, "
+                             f"got {w!r}")
+        if isinstance(self.substeps, bool) or not isinstance(self.substeps, int) \
+                or self.substeps < 1:
+            raise ValueError(f"ExecutionParams.substeps must be an int >= 1, "
+                             f"got {self.substeps!r}")
+
+
+class Execution(NamedTuple):
+    """Execution-time context of :func:`policy_velocity`: the ``obstacles``, the previous command
+    ``qd_prev (7,)`` and step ``h`` (for the lifted collision leaves), the posture ``q_posture
+    (7,)`` and its weight ``posture_weight`` (a scalar, may be traced: it overrides
+    ``params.posture_weight``), the leaf parameters ``params`` and the collision leaves'
+    ``hand_config``."""
+
+    obstacles: Obstacles
+    qd_prev: jax.Array
+    h: float
+    q_posture: jax.Array
+    posture_weight: jax.Array | float
+    params: ExecutionParams
+    hand_config: policies.PolicyConfig
+
+
 def execution_config(obstacle_shape: str = "cylinder") -> policies.PolicyConfig:
-    """The hand-designed leaves added at execution time (§5.2.3): the Franka joint-limit and
-    collision RMPs with their default parameters (ANCHOR_FACTS §1.1) and joint-limit buffers."""
-    return policies.PolicyConfig(
-        robot="franka", joint_limit=JointLimitParams(), collision=CollisionParams(),
-        joint_limit_buffers=policies.FRANKA_JOINT_LIMIT_BUFFERS, obstacle_shape=obstacle_shape)
+    """The hand-designed acceleration-form leaves lifted at execution time (§5.2.3): the Franka
+    collision RMP with its default parameters (ANCHOR_FACTS §1.1). Joint limits are the
+    velocity-form leaf of :class:`ExecutionParams` instead."""
+    return policies.PolicyConfig(robot="franka", collision=CollisionParams(),
+                                 obstacle_shape=obstacle_shape)
+
+
+def joint_limit_leaf(s: jax.Array, p: ExecutionParams) -> RMP:
+    """The velocity-form joint-limit RMP of :class:`ExecutionParams` on distances ``s (n, 1)``:
+    ``(m(s), m(s)·ṡ_d(s))`` as a family of 1-D natural-form pairs."""
+    s = jnp.maximum(s, 0.0)
+    act = jax.nn.relu(1.0 - s / p.joint_limit_length)
+    m = p.joint_limit_scale * (act / (s / p.joint_limit_length + p.joint_limit_eps)) ** 2
+    return RMP(m[..., None], m * p.joint_limit_speed * act)
+
+
+def joint_limit_distances(q: jax.Array) -> jax.Array:
+    """``s = [q_u − b − q, q − q_l − b] (14, 1)``: distances to the buffered Franka limits."""
+    buf = jnp.asarray(policies.FRANKA_JOINT_LIMIT_BUFFERS, q.dtype)
+    upper = jnp.asarray(franka.Q_UPPER, q.dtype) - buf
+    lower = jnp.asarray(franka.Q_LOWER, q.dtype) + buf
+    return jnp.concatenate([upper - q, q - lower])[:, None]
 
 
 def _lifted(rmp_moving: RMP, rmp_still: RMP, h: float) -> RMP:
@@ -553,16 +649,15 @@ def _lifted(rmp_moving: RMP, rmp_still: RMP, h: float) -> RMP:
 
 
 def policy_velocity(config: StrategyConfig, result: StrategyResult, q: jax.Array,
-                    goals: jax.Array, q_goal: jax.Array,
-                    hand: tuple[policies.PolicyConfig, Obstacles, jax.Array, float] | None = None
+                    goals: jax.Array, q_goal: jax.Array, execution: Execution | None = None
                     ) -> jax.Array:
     """The learned policy (*) at one configuration ``q (7,)`` through
     :func:`mjxrmp.rmp2.pullback_velocity`; ``goals (3, 3)`` control-point goals, ``q_goal (7,)``.
 
-    ``hand = (policy_config, obstacles, qd_prev, h)`` adds the hand-designed leaves of
-    ``policy_config`` (e.g. :func:`execution_config`) in their velocity-form lift (module
-    docstring) at the previous command ``qd_prev`` with step ``h``. Without it this equals
-    :func:`training_velocity` on the same sample.
+    ``execution`` (:class:`Execution`) adds the execution-time leaves: the velocity-form
+    joint-limit and posture leaves of :class:`ExecutionParams` and the hand-designed collision
+    leaves of ``execution.hand_config`` in their velocity-form lift (module docstring) at the
+    previous command. Without it this equals :func:`training_velocity` on the same sample.
     """
     s, k = config.strategy, config.point
 
@@ -575,46 +670,61 @@ def policy_velocity(config: StrategyConfig, result: StrategyResult, q: jax.Array
             result.params["metric"], y)
         return RMP(G, -config.latent_gain * y)
 
-    def default_leaf(x):
-        w = config.default_weight
+    def default_leaf(x, w, gain):
         eye = jnp.broadcast_to(jnp.eye(x.shape[-1], dtype=x.dtype), (*x.shape, x.shape[-1]))
-        return RMP(w * eye, -w * config.default_gain * x)
+        return RMP(w * eye, -w * gain * x)
 
     def base_map(q_):
         return {"learned": learned_map(q_),
                 "default": task_coordinates(s, k, q_, goals, q_goal)}
 
     def base_leaves(x):
-        return {"learned": learned_leaf(x["learned"]), "default": default_leaf(x["default"])}
+        return {"learned": learned_leaf(x["learned"]),
+                "default": default_leaf(x["default"], config.default_weight,
+                                        config.default_gain)}
 
-    if hand is None:
+    if execution is None:
         root = rmp2.pullback_velocity(base_map, base_leaves, q)
         return resolve_velocity(root.M, root.f, config.regularization)
 
-    cfg, obstacles, qd_prev, h = hand
+    ex = execution
+    cfg, p = ex.hand_config, ex.params
     dummy_goal = jnp.zeros((3,), q.dtype)
-    hand_map = lambda q_: policies.task_map(q_, dummy_goal, obstacles, cfg)  # noqa: E731
-    _, xd_hand = jax.jvp(hand_map, (q,), (qd_prev,))
+    hand_map = lambda q_: policies.task_map(q_, dummy_goal, ex.obstacles, cfg)  # noqa: E731
+    _, xd_hand = jax.jvp(hand_map, (q,), (ex.qd_prev,))
+
+    def full_map(q_):
+        return {**base_map(q_), "hand": hand_map(q_), "joint_limit": joint_limit_distances(q_),
+                "posture": (q_ - ex.q_posture)[None]}
 
     def leaf_fn(x):
-        moving = policies.leaf_rmps(x["hand"], xd_hand, dummy_goal, obstacles, cfg)
+        moving = policies.leaf_rmps(x["hand"], xd_hand, dummy_goal, ex.obstacles, cfg)
         still = policies.leaf_rmps(x["hand"], jax.tree.map(jnp.zeros_like, xd_hand),
-                                   dummy_goal, obstacles, cfg)
-        lifted = {n: _lifted(moving[n], still[n], h) for n in moving}
-        return {**base_leaves(x), "hand": lifted}
+                                   dummy_goal, ex.obstacles, cfg)
+        return {**base_leaves(x),
+                "hand": {n: _lifted(moving[n], still[n], ex.h) for n in moving},
+                "joint_limit": joint_limit_leaf(x["joint_limit"], p),
+                "posture": default_leaf(x["posture"], ex.posture_weight, p.posture_gain)}
 
-    root = rmp2.pullback_velocity(lambda q_: {**base_map(q_), "hand": hand_map(q_)}, leaf_fn, q)
+    root = rmp2.pullback_velocity(full_map, leaf_fn, q)
     return resolve_velocity(root.M, root.f, config.regularization)
 
 
 def rollout(config: StrategyConfig, result: StrategyResult, q0: jax.Array, goals: jax.Array,
             q_goal: jax.Array, num_steps: int, dt: float,
             obstacles: Obstacles | None = None,
-            hand_config: policies.PolicyConfig | None = None) -> tuple[jax.Array, jax.Array]:
-    """Integrate the policy from ``q0 (7,)`` for ``num_steps`` steps of ``dt``:
-    ``q ← q + dt·clip(q̇, ±q̇_max)`` in one ``lax.scan``. With ``obstacles`` the hand-designed
-    joint-limit and collision leaves (``hand_config``, default :func:`execution_config`) are
-    added with ``h = dt``. Returns ``(qs (num_steps + 1, 7), qds (num_steps, 7))``."""
+            hand_config: policies.PolicyConfig | None = None,
+            params: ExecutionParams | None = None,
+            q_posture: jax.Array | None = None,
+            posture_weight: jax.Array | float | None = None) -> tuple[jax.Array, jax.Array]:
+    """Integrate the policy from ``q0 (7,)`` for ``num_steps`` control steps of ``dt``, each by
+    ``params.substeps`` Euler steps ``q ← q + (dt/substeps)·clip(q̇, ±q̇_max)``, in one
+    ``lax.scan``. With ``obstacles`` the execution-time leaves are added (:class:`Execution`:
+    ``params`` default :class:`ExecutionParams`, ``hand_config`` default
+    :func:`execution_config`, ``q_posture`` default ``q_goal``, ``posture_weight`` (may be
+    traced, e.g. ``vmap``-ped) default ``params.posture_weight``); without, the learned policy
+    alone. Returns ``(qs (num_steps + 1, 7), qds (num_steps, 7))``, ``qds`` the mean command
+    over each control step."""
     if isinstance(num_steps, bool) or not isinstance(num_steps, (int, np.integer)) \
             or num_steps < 1:
         raise ValueError(f"num_steps must be a static int >= 1, got {num_steps!r}")
@@ -623,13 +733,20 @@ def rollout(config: StrategyConfig, result: StrategyResult, q0: jax.Array, goals
     q0 = rmp2.check_configuration("q0", q0, DOF)
     qd_max = jnp.asarray(franka.QD_MAX, q0.dtype)
     cfg = execution_config() if hand_config is None else hand_config
+    p = ExecutionParams() if params is None else params
+    h = dt / p.substeps
+    q_p = q_goal if q_posture is None else q_posture
+    w_p = p.posture_weight if posture_weight is None else posture_weight
+
+    def sub(carry, _):
+        q, qd_prev = carry
+        ex = None if obstacles is None else Execution(obstacles, qd_prev, h, q_p, w_p, p, cfg)
+        qd = jnp.clip(policy_velocity(config, result, q, goals, q_goal, ex), -qd_max, qd_max)
+        return (q + h * qd, qd), qd
 
     def step(carry, _):
-        q, qd_prev = carry
-        hand = None if obstacles is None else (cfg, obstacles, qd_prev, dt)
-        qd = jnp.clip(policy_velocity(config, result, q, goals, q_goal, hand), -qd_max, qd_max)
-        q = q + dt * qd
-        return (q, qd), (q, qd)
+        carry, qds = jax.lax.scan(sub, carry, None, length=p.substeps)
+        return carry, (carry[0], jnp.mean(qds, axis=0))
 
     _, (qs, qds) = jax.lax.scan(step, (q0, jnp.zeros_like(q0)), None, length=int(num_steps))
     return jnp.concatenate([q0[None], qs], axis=0), qds

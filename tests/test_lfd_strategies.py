@@ -179,6 +179,50 @@ def test_velocity_form_resolve_is_the_pseudo_inverse(stacked):
     np.testing.assert_allclose(ref["M"] @ got, ref["f"], atol=1e-6 * np.abs(ref["f"]).max())
 
 
+def _joint_limit_leaf_np(s, p):
+    """NumPy restatement of the velocity-form joint-limit leaf (``ExecutionParams`` docstring)."""
+    s = np.maximum(s, 0.0)
+    act = np.maximum(1.0 - s / p.joint_limit_length, 0.0)
+    m = p.joint_limit_scale * (act / (s / p.joint_limit_length + p.joint_limit_eps)) ** 2
+    return m, m * p.joint_limit_speed * act
+
+
+def test_execution_leaves_match_float64_reference(stacked):
+    """Execution-time leaves (§5.2.3, §5.3.2) through rmp2.pullback_velocity: near two joint
+    limits the root gains ``J_sᵀ diag(m(s)) J_s`` and ``J_sᵀ m(s)ṡ_d(s)`` (``J_s = [−I; I]``),
+    the posture leaf ``w_c I`` and ``−w_c γ_c (q − q_p)``; an inactive obstacle adds nothing."""
+    from mjxrmp import policies
+    from mjxrmp.geometry import make_obstacles
+    from mjxrmp.robots import franka
+
+    config = L.StrategyConfig.tiny("joint", num_layers=2)
+    p = L.ExecutionParams(posture_weight=0.7, posture_gain=0.3)
+    with _x64():
+        params, consts = _f64(_perturbed_params(config, jax.random.PRNGKey(7)))
+        result = L.StrategyResult(params, consts, None, None)
+        q = np.asarray(stacked.q[1, 4], np.float64).copy()
+        q[3], q[5] = -0.09, 3.70          # 0.08 and 0.11 rad inside the buffered limits
+        goals = np.asarray(stacked.goals[1], np.float64)
+        qg = np.asarray(stacked.q_goal[1], np.float64)
+        qp = qg + 0.1
+        ref = _reference(config, params, consts)(q, goals, qg)
+        buf = np.asarray(policies.FRANKA_JOINT_LIMIT_BUFFERS)
+        s = np.concatenate([np.asarray(franka.Q_UPPER) - buf - q,
+                            q - np.asarray(franka.Q_LOWER) - buf])
+        m, fj = _joint_limit_leaf_np(s, p)
+        assert np.count_nonzero(m) == 2
+        Js = np.concatenate([-np.eye(7), np.eye(7)])
+        M = ref["M"] + Js.T @ np.diag(m) @ Js + p.posture_weight * np.eye(7)
+        f = ref["f"] + Js.T @ fj - p.posture_weight * p.posture_gain * (q - qp)
+        want = np.linalg.solve(M + config.regularization * np.eye(7), f)
+        obs = make_obstacles(jnp.zeros((1, 3)), jnp.asarray([0.05]), jnp.zeros((1,)))
+        ex = L.Execution(obs, jnp.zeros((7,)), 0.05, jnp.asarray(qp), p.posture_weight, p,
+                         L.execution_config())
+        got = np.asarray(jax.jit(lambda qq: L.policy_velocity(config, result, qq, goals, qg,
+                                                              ex))(jnp.asarray(q)))
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-6)
+
+
 # ---------------------------------------------------------------------------------------------
 # One tiny trained joint policy (two seeds, one program)
 # ---------------------------------------------------------------------------------------------
@@ -233,6 +277,25 @@ def test_learned_joint_policy_converges_from_perturbed_starts(rollout_fn, stacke
     assert dist[-1] <= dist[-100] + 1e-4
 
 
+def test_execution_rollout_respects_joint_limits(trained, stacked):
+    """With the execution-time leaves, starts inside the joint-limit buffers are pushed out of
+    them and no joint ever leaves the model's limits (the barrier of ``ExecutionParams``)."""
+    from mjxrmp.geometry import make_obstacles
+    from mjxrmp.robots import franka
+
+    result = jax.tree.map(lambda x: x[0], trained[2])
+    obs = make_obstacles(jnp.zeros((1, 3)), jnp.asarray([0.05]), jnp.zeros((1,)))
+    q0 = np.asarray(stacked.q[0, 0]).copy()
+    q0[3], q0[5] = -0.005, 3.82          # 5 mm inside the buffer of joint 4; at joint 6's limit
+    qs, _ = jax.jit(lambda q: L.rollout(TINY, result, q, stacked.goals[0], stacked.q_goal[0],
+                                        100, 0.05, obs))(jnp.asarray(q0, jnp.float32))
+    qs = np.asarray(qs)
+    s = np.asarray(jax.vmap(L.joint_limit_distances)(jnp.asarray(qs)))[..., 0]
+    assert np.all(np.isfinite(qs))
+    assert np.all(qs >= np.asarray(franka.Q_LOWER)) and np.all(qs <= np.asarray(franka.Q_UPPER))
+    assert s[0].min() < 0 and s[-1].min() > 0
+
+
 def test_config_validation():
     with pytest.raises(ValueError, match="strategy must be one of"):
         L.StrategyConfig(strategy="bc")
@@ -242,6 +305,12 @@ def test_config_validation():
         L.StrategyConfig(strategy="single_link", point=3)
     with pytest.raises(ValueError, match="metric_iterations"):
         L.StrategyConfig(metric_iterations=-1)
+    with pytest.raises(ValueError, match=r"ExecutionParams\.joint_limit_length"):
+        L.ExecutionParams(joint_limit_length=0.0)
+    with pytest.raises(ValueError, match=r"ExecutionParams\.posture_weight"):
+        L.ExecutionParams(posture_weight=-1.0)
+    with pytest.raises(ValueError, match=r"ExecutionParams\.substeps"):
+        L.ExecutionParams(substeps=0)
 
 
 def test_train_rejects_wrong_sample_shapes(trained):
@@ -258,6 +327,9 @@ def test_script_quick_runs_end_to_end(tmp_path):
     joint = m["tasks"]["drawer_closing"]["joint"]
     assert np.isfinite(joint["mean_position_error"]) and 0 <= joint["success_rate"] <= 1
     assert len(joint["folds"][0]["mean_position_error_per_point"]) == 3
+    assert joint["obstacle_rollouts"] == 2 and 0 <= joint["colliding_rollouts"] <= 2
+    assert (joint["colliding_rollouts"] == 0) == (joint["min_clearance_obstacle"] > 0)
+    assert joint["joint_limit_violations"] == 0
     assert (tmp_path / "table.csv").read_text().startswith("task,strategy,")
     for name in ("lfd_franka_drawer_closing.png", "lfd_franka_errors.png"):
         assert (tmp_path / name).stat().st_size > 1000
