@@ -392,14 +392,15 @@ def plot_errors(path, metrics):
         axes[0, j].set_ylabel("mean position error (cm)")
         axes[0, j].set_title(f"{task}: leave-one-out reproduction")
         x = np.arange(len(strategies))
-        axes[1, j].bar(x - 0.2, [metrics[task][s]["success_rate"] * 100 for s in strategies],
-                       0.4, label="no obstacle")
-        axes[1, j].bar(x + 0.2, [metrics[task][s]["success_rate_obstacle"] * 100
-                                 for s in strategies], 0.4, label="cylinder obstacle")
+        bars = (("success_rate", "no obstacle"), ("success_rate_obstacle", "cylinder obstacle"),
+                ("success_rate_no_posture", "no obstacle, no posture leaf"))
+        for b, (key, label) in enumerate(bars):
+            axes[1, j].bar(x + 0.27 * (b - 1), [metrics[task][s][key] * 100 for s in strategies],
+                           0.27, label=label)
         axes[1, j].set_xticks(x, [LABELS[s] for s in strategies], fontsize=8)
-        axes[1, j].set_ylim(0, 105)
+        axes[1, j].set_ylim(0, 125)
         axes[1, j].set_ylabel("success from new starts (%)")
-        axes[1, j].legend(fontsize=8)
+        axes[1, j].legend(fontsize=7, loc="upper center", ncol=3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
