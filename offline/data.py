@@ -255,6 +255,15 @@ def validate(dataset: Dataset, *, name: str = "dataset") -> Dataset:
             raise ValueError(f"{name}.{field} has {int(bad.sum())} non-finite value(s), the "
                              f"first at index {tuple(int(i) for i in idx)}: "
                              f"{np_arrays[field][tuple(idx)]}")
+    limit = dataset.metadata.get("action_limit")
+    if limit is not None and n:
+        excess = np.abs(np_arrays["actions"]) > float(limit) * (1 + 1e-6)
+        if excess.any():
+            idx = np.argwhere(excess)[0]
+            raise ValueError(f"{name}.actions has {int(excess.sum())} value(s) outside the action "
+                             f"space [-{limit}, {limit}] (metadata['action_limit']), the first "
+                             f"at index {tuple(int(i) for i in idx)}: "
+                             f"{np_arrays['actions'][tuple(idx)]}")
     term, tout, ids = np_arrays["terminals"], np_arrays["timeouts"], np_arrays["episode_ids"]
     both = term & tout
     if both.any():
@@ -274,6 +283,24 @@ def validate(dataset: Dataset, *, name: str = "dataset") -> Dataset:
             i = int(np.argmax(ends))
             raise ValueError(f"{name}: transition {i} ends episode {int(ids[i])} (terminal or "
                              f"timeout) but transition {i + 1} continues it")
+    return dataset
+
+
+def check_environment(dataset: Dataset, env: Any, *, name: str = "dataset") -> Dataset:
+    """Refuse ``dataset`` for environment ``env`` (an object with ``observation_size``,
+    ``action_size`` and ``action_limit``, e.g. from :func:`envs.make`) unless its observation
+    and action sizes match and its actions lie in the environment's action box."""
+    validate(dataset, name=name)
+    for what, have, want in (("observation size", dataset.observation_size,
+                              int(env.observation_size)),
+                             ("action size", dataset.action_size, int(env.action_size))):
+        if have != want:
+            raise ValueError(f"{name} has {what} {have}, but the environment "
+                             f"{dataset.metadata.get('env', type(env).__name__)!r} expects {want}")
+    limit = float(getattr(env, "action_limit", np.inf))
+    if dataset.size and np.abs(np.asarray(dataset.actions)).max() > limit * (1 + 1e-6):
+        raise ValueError(f"{name}.actions leave the environment's action space [-{limit}, "
+                         f"{limit}] (largest |a| = {np.abs(np.asarray(dataset.actions)).max()})")
     return dataset
 
 
@@ -771,6 +798,7 @@ __all__ = [
     "EpisodeStats",
     "Metadata",
     "TransitionTable",
+    "check_environment",
     "concatenate",
     "create",
     "episode_statistics",

@@ -126,8 +126,8 @@ def _done_cells(path: Path) -> set[str]:
 
 def train_stage(args) -> None:
     """Train and evaluate every missing cell; append one JSON line per cell."""
+    from offline import collect, evaluate, experiment, scenarios
     from offline import data as odata
-    from offline import evaluate, experiment, scenarios
     from offline.learner import actor_params
 
     results = args.out / "results.jsonl"
@@ -135,8 +135,10 @@ def train_stage(args) -> None:
     budget = experiment.Budget(steps=args.steps, hidden=tuple(args.hidden))
     keys = experiment.seed_keys(range(args.seeds))
     for env in args.envs:
-        mixed = odata.load(data_path(args.out, env, "mixed", args.scale, args.data_seed))
-        expert = odata.load(data_path(args.out, env, "expert", args.scale, args.data_seed))
+        env_obj = collect.make_env(env)
+        mixed, expert = (odata.check_environment(
+            odata.load(data_path(args.out, env, recipe, args.scale, args.data_seed)), env_obj,
+            name=recipe) for recipe in ("mixed", "expert"))
         evaluator = None
         for scenario in args.scenarios:
             dyn, rd = scenarios.make(scenario, mixed, expert,

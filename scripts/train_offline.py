@@ -93,11 +93,13 @@ def load_data(args):
 
     data = get(args.dataset, args.recipe)
     env = data.metadata.get("env", args.env)
+    odata.check_environment(data, collect.make_env(env), name=str(args.dataset or "dataset"))
     if args.scenario is None:
         if args.remove_terminals:
             data = scenarios.terminals_as_timeouts(data)
         return env, data, None
-    expert = get(args.expert, "expert")
+    expert = odata.check_environment(get(args.expert, "expert"), collect.make_env(env),
+                                     name=str(args.expert or "expert"))
     if expert.metadata.get("env", env) != env:
         raise SystemExit(f"--expert was collected on {expert.metadata.get('env')!r}, the "
                          f"dataset on {env!r}")

@@ -127,6 +127,35 @@ def test_validation_errors_name_the_field():
         _toy(metadata={"policy": object()})
 
 
+def test_bad_datasets_are_refused_with_clear_messages():
+    ds = _toy()
+    with pytest.raises(ValueError, match="inconsistent leading sizes"):
+        od.validate(ds.replace(observations=ds.observations[:-1]))
+    rewards = np.asarray(ds.rewards).copy()
+    rewards[3] = np.nan
+    with pytest.raises(ValueError, match=r"rewards has 1 non-finite value\(s\), the first at "
+                                         r"index \(3,\)"):
+        od.validate(ds.replace(rewards=rewards))
+    limited = ds.replace(metadata=ds.metadata.updated(action_limit=0.5))
+    big = np.asarray(ds.actions).copy()
+    big[2, 0] = 0.75
+    with pytest.raises(ValueError, match=r"outside the action space \[-0.5, 0.5\]"):
+        od.validate(limited.replace(actions=big))
+
+    class Env:
+        observation_size, action_size, action_limit = ds.observation_size, ds.action_size, 1.0
+
+    od.check_environment(ds, Env())
+    Env.observation_size += 1
+    with pytest.raises(ValueError, match=r"observation size \d+, but the environment .* "
+                                         r"expects \d+"):
+        od.check_environment(ds, Env())
+    Env.observation_size -= 1
+    Env.action_limit = float(np.abs(np.asarray(ds.actions)).max()) / 2
+    with pytest.raises(ValueError, match="leave the environment's action space"):
+        od.check_environment(ds, Env())
+
+
 def test_save_load_bit_exact(tmp_path):
     ds = _toy(metadata={"env": "three_link/env3", "behaviour": "expert+noise0.1",
                         "recipe": {"episodes": 3, "noise": [0.1, 0.5]}})
