@@ -65,8 +65,9 @@ class PPOConfig:
     equal minibatches. Each epoch shuffles the batch within ``shuffle_blocks`` equal blocks of
     environments and gives every minibatch the same number of samples from each block
     (``None``: one block per device of the mesh, so that shuffling never moves data between
-    devices; one block without a mesh — a plain shuffle). ``max_grad_norm=None`` disables global-norm clipping. ``episode_length``
-    (``None``: the environment's ``horizon``) is used when :func:`make_train` wraps the env.
+    devices; one block without a mesh — a plain shuffle). ``max_grad_norm=None`` disables
+    global-norm clipping. ``episode_length`` (``None``: the environment's ``horizon``) is used
+    when :func:`make_train` wraps the env.
     """
 
     num_envs: int = 16
