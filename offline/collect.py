@@ -16,6 +16,20 @@ state), so
 
 Episodes are cut at collisions, which is what gives the data the length bias of thesis §8.3.3.
 
+**Datasets without length bias** (``cut_at_collision=False`` in :func:`rollout`,
+:func:`collect` and :func:`collect_recipe`; default True, the behaviour above). The
+environment never stops an episode itself: :meth:`envs.reaching.ReachEnv.step` only *reports*
+``done = 1`` at a collision, and it is this module that freezes the episode. Without the cut the
+episode simply keeps being stepped for the full horizon: obstacles are not in the MJX model, so
+the arm passes through them (the data is then like D4RL's halfcheetah, thesis §8.4.1: every
+episode has the same length). A colliding step keeps the environment's reward (its obstacle
+penalty, averaged up to the first colliding substep), the collision is recorded in the
+``collision`` rollout array and the per-episode ``collided`` / ``safe`` / ``success`` (and the
+metadata's ``safe_pct``) — never as a terminal. Only a **non-finite** state still ends an
+episode (a terminal, as with the cut): it cannot be continued. Such datasets have
+``metadata["cut_at_collision"] = False`` (the key is absent from default datasets, so read it
+as ``metadata.get("cut_at_collision", True)``).
+
 **Recorded action.** The action stored is the one the environment actually applied: the policy's
 output with NaNs replaced by 0 and clipped to ``±action_limit`` — exactly what
 :meth:`envs.reaching.ReachEnv.step` does before integrating. For the noisy expert the Gaussian
@@ -225,14 +239,19 @@ def _executed(env, raw: jax.Array) -> jax.Array:
     return jnp.clip(a, -env.action_limit, env.action_limit).astype(jnp.float32)
 
 
-def _rollout_fn(env, horizon: int, act: Callable, obs_size: int, params_axes: Any = 0
-                ) -> Callable:
+def _rollout_fn(env, horizon: int, act: Callable, obs_size: int, params_axes: Any = 0,
+                cut_at_collision: bool = True) -> Callable:
     """``jit(vmap(episode))(keys (B, 2), params) -> (traj, per_episode)``, time-major traj.
 
     ``act(state, key, params) -> (raw_action, base_action)`` for one episode: the joint
     acceleration the policy asks for (before the environment's clip) and its noise-free part;
     ``params_axes`` is the ``in_axes`` of ``params`` (None for parameters shared by all).
+    An episode is frozen after ``done`` (``cut_at_collision``) or only after a non-finite
+    state (module docstring, "Datasets without length bias").
     """
+
+    def ended(state):
+        return state.done if cut_at_collision else state.metrics["nonfinite"]
 
     def episode(key, params):
         k_reset, k_act = jax.random.split(key)
@@ -242,7 +261,7 @@ def _rollout_fn(env, horizon: int, act: Callable, obs_size: int, params_axes: An
             raw, base = act(state, jax.random.fold_in(k_act, t), params)
             executed = _executed(env, raw)
             new = env.step(state, executed)
-            valid = state.done == 0
+            valid = ended(state) == 0
             new = jax.tree.map(lambda a, b: jnp.where(valid, a, b), new, state)
             out = {
                 "observations": state.obs[:obs_size],
@@ -251,7 +270,7 @@ def _rollout_fn(env, horizon: int, act: Callable, obs_size: int, params_axes: An
                 "base_actions": base,
                 "rewards": new.reward,
                 "next_observations": new.obs[:obs_size],
-                "dones": jnp.where(valid, new.done, 0.0),
+                "dones": jnp.where(valid, ended(new), 0.0),
                 "valid": valid,
                 "collision": jnp.where(valid, new.metrics["collision"], 0.0),
                 "nonfinite": jnp.where(valid, new.metrics["nonfinite"], 0.0),
@@ -283,10 +302,11 @@ def _rollout_fn(env, horizon: int, act: Callable, obs_size: int, params_axes: An
     return rollout
 
 
-def _scripted_program(env_name: str, env_kwargs, horizon: int, batch: int):
+def _scripted_program(env_name: str, env_kwargs, horizon: int, batch: int,
+                      cut_at_collision: bool = True):
     """Program for expert / noisy / random; params = (sigma (B,), uniform (B,))."""
     env = make_env(env_name, env_kwargs)
-    key = ("scripted", env_name, _kwargs_key(env_kwargs), horizon, batch)
+    key = ("scripted", env_name, _kwargs_key(env_kwargs), horizon, batch, cut_at_collision)
     if key not in _PROGRAMS:
         policy = hand_designed_policy(env)
         lim, size = env.action_limit, env.action_size
@@ -299,7 +319,8 @@ def _scripted_program(env_name: str, env_kwargs, horizon: int, batch: int):
             rand = jax.random.uniform(k_unif, (size,), jnp.float32, -lim, lim)
             return jnp.where(uniform, rand, noisy), base
 
-        _PROGRAMS[key] = (env, _rollout_fn(env, horizon, act, env.observation_size))
+        _PROGRAMS[key] = (env, _rollout_fn(env, horizon, act, env.observation_size,
+                                           cut_at_collision=cut_at_collision))
     return _PROGRAMS[key]
 
 
@@ -312,7 +333,8 @@ def _load(run_dir: str, step: int | None):
     return _RUNS[key]
 
 
-def _ppo_program(env_name: str, env_kwargs, horizon: int, batch: int, loaded):
+def _ppo_program(env_name: str, env_kwargs, horizon: int, batch: int, loaded,
+                 cut_at_collision: bool = True):
     """Program for a PPO policy; params = (PolicyParams, stochastic (B,))."""
     from envs.wrappers import RMPInEnv
 
@@ -325,7 +347,8 @@ def _ppo_program(env_name: str, env_kwargs, horizon: int, batch: int, loaded):
     variant = "residual_rmp" if kind == "rmp_residual_env" else None
     base_env = make_env(env_name, env_kwargs, observation=variant)
     module = loaded.policy_module
-    key = ("ppo", env_name, _kwargs_key(env_kwargs), horizon, batch, kind, id(module))
+    key = ("ppo", env_name, _kwargs_key(env_kwargs), horizon, batch, kind, id(module),
+           cut_at_collision)
     if key not in _PROGRAMS:
         data_layout = data_env.observation_layout()
         pol_layout = base_env.observation_layout()
@@ -345,7 +368,8 @@ def _ppo_program(env_name: str, env_kwargs, horizon: int, batch: int, loaded):
             return raw, mean
 
         _PROGRAMS[key] = (module, _rollout_fn(base_env, horizon, act,
-                                              data_env.observation_size, (None, 0)))
+                                              data_env.observation_size, (None, 0),
+                                              cut_at_collision))
     return _PROGRAMS[key]
 
 
@@ -369,7 +393,8 @@ def source_key(seed: int | jax.Array, role: str, name: str) -> jax.Array:
 def rollout(env_name: str, behaviour: Behaviour, num_episodes: int, key: jax.Array, *,
             env_kwargs: Mapping[str, Any] | None = None, horizon: int | None = None,
             batch_size: int | None = None,
-            progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+            progress: Callable[[str], None] | None = None,
+            cut_at_collision: bool = True) -> dict[str, Any]:
     """Raw rollout arrays (NumPy) of ``num_episodes`` episodes of ``behaviour``.
 
     Returns a dict with time-major ``(T, B, ...)`` arrays ``observations``, ``actions``
@@ -383,7 +408,11 @@ def rollout(env_name: str, behaviour: Behaviour, num_episodes: int, key: jax.Arr
     ``collided``, ``nonfinite``, ``safe``, ``success``, ``final_goal_distance``,
     ``final_observation``). Episodes run ``batch_size`` at a time (default: all at once; the
     last chunk is padded and the padding dropped) in one compiled program per batch size.
+    ``cut_at_collision=False`` keeps colliding episodes running to the horizon (module
+    docstring, "Datasets without length bias"): ``dones`` then marks non-finite states only.
     """
+    if not isinstance(cut_at_collision, bool):
+        raise ValueError(f"cut_at_collision must be a bool, got {cut_at_collision!r}")
     if not isinstance(num_episodes, int | np.integer) or num_episodes < 1:
         raise ValueError(f"num_episodes must be a positive integer, got {num_episodes!r}")
     env = make_env(env_name, env_kwargs)
@@ -400,13 +429,13 @@ def rollout(env_name: str, behaviour: Behaviour, num_episodes: int, key: jax.Arr
         from agents.runs import policy_params
 
         loaded = _load(behaviour.run_dir, behaviour.step)
-        _, fn = _ppo_program(env_name, env_kwargs, horizon, batch, loaded)
+        _, fn = _ppo_program(env_name, env_kwargs, horizon, batch, loaded, cut_at_collision)
         pparams = policy_params(loaded, behaviour.seed_index)
 
         def params_for(b):
             return pparams, jnp.full((b,), behaviour.stochastic)
     else:
-        _, fn = _scripted_program(env_name, env_kwargs, horizon, batch)
+        _, fn = _scripted_program(env_name, env_kwargs, horizon, batch, cut_at_collision)
         sigma = behaviour.sigma if behaviour.kind == "noisy" else 0.0
         uniform = behaviour.kind == "random"
 
@@ -446,6 +475,11 @@ def environment_metadata(env_name: str, env_kwargs: Mapping[str, Any] | None = N
     }
 
 
+def _cut_metadata(cut_at_collision: bool) -> dict[str, Any]:
+    """``{"cut_at_collision": False}`` for uncut data, nothing for the default."""
+    return {} if cut_at_collision else {"cut_at_collision": False}
+
+
 def _source_summary(ds: odata.Dataset, ep: Mapping[str, np.ndarray]) -> dict[str, Any]:
     _, s = odata.episode_statistics(ds)
     return {
@@ -476,16 +510,21 @@ def collect(env_name: str, behaviour: Behaviour, num_episodes: int, *, seed: int
             key: jax.Array | None = None, env_kwargs: Mapping[str, Any] | None = None,
             horizon: int | None = None, batch_size: int | None = None,
             metadata: Mapping[str, Any] | None = None,
-            progress: Callable[[str], None] | None = None) -> odata.Dataset:
+            progress: Callable[[str], None] | None = None,
+            cut_at_collision: bool = True) -> odata.Dataset:
     """A :class:`offline.data.Dataset` of ``num_episodes`` episodes of ``behaviour`` on
     ``env_name`` (see the module docstring). ``key`` (default ``PRNGKey(seed)``) drives scenes
-    and noise; ``metadata`` entries are added to the recorded ones."""
+    and noise; ``metadata`` entries are added to the recorded ones. ``cut_at_collision=False``
+    gives full-horizon episodes without collision terminals (no length bias, thesis §8.3.3;
+    module docstring) and records ``metadata["cut_at_collision"] = False``."""
     if key is None:
         key = jax.random.PRNGKey(seed)
     traj = rollout(env_name, behaviour, num_episodes, key, env_kwargs=env_kwargs,
-                   horizon=horizon, batch_size=batch_size, progress=progress)
+                   horizon=horizon, batch_size=batch_size, progress=progress,
+                   cut_at_collision=cut_at_collision)
     meta = {**environment_metadata(env_name, env_kwargs, horizon), "seed": int(seed),
-            "behaviour": behaviour.describe(), "num_episodes": int(num_episodes)}
+            "behaviour": behaviour.describe(), "num_episodes": int(num_episodes),
+            **_cut_metadata(cut_at_collision)}
     ds = to_dataset(traj, meta)
     summary = _source_summary(ds, traj["episode"])
     return ds.replace(metadata=ds.metadata.updated(summary=summary, **dict(metadata or {})))
@@ -583,7 +622,8 @@ def collect_recipe(env_name: str, recipe: str, scale: int, *, seed: int = 0,
                    ppo_seed_index: int = 0, ppo_stochastic: bool = True,
                    env_kwargs: Mapping[str, Any] | None = None, horizon: int | None = None,
                    batch_size: int | None = None,
-                   progress: Callable[[str], None] | None = None) -> odata.Dataset:
+                   progress: Callable[[str], None] | None = None,
+                   cut_at_collision: bool = True) -> odata.Dataset:
     """The dataset of ``recipe`` (module docstring table) with ``scale`` episodes per source.
 
     Sources are concatenated in table order (episode ids ``0 … K−1``);
@@ -592,7 +632,8 @@ def collect_recipe(env_name: str, recipe: str, scale: int, *, seed: int = 0,
     sentence saying what stands in for missing PPO data (also emitted as a ``UserWarning``).
     ``batch_size`` defaults to ``scale``; every source runs in chunks of exactly that many
     episodes (smaller sources are padded), so all scripted sources share one compiled program
-    and all PPO checkpoints of the run another.
+    and all PPO checkpoints of the run another. ``cut_at_collision=False``: every source is
+    collected without collision cuts (:func:`collect`).
     """
     sources, fallback = recipe_sources(recipe, scale, ppo_run=ppo_run, ppo_step=ppo_step,
                                        ppo_seed_index=ppo_seed_index,
@@ -608,7 +649,7 @@ def collect_recipe(env_name: str, recipe: str, scale: int, *, seed: int = 0,
         ds = collect(env_name, src.behaviour, src.episodes,
                      key=source_key(seed, src.role, src.behaviour.name), seed=seed,
                      env_kwargs=env_kwargs, horizon=horizon, batch_size=batch,
-                     progress=progress)
+                     progress=progress, cut_at_collision=cut_at_collision)
         parts.append(ds)
         described.append({"role": src.role, "behaviour": src.behaviour.describe(),
                           "episodes": src.episodes, "fallback": src.fallback,
@@ -618,7 +659,7 @@ def collect_recipe(env_name: str, recipe: str, scale: int, *, seed: int = 0,
     meta = {**environment_metadata(env_name, env_kwargs, horizon), "seed": int(seed),
             "recipe": recipe, "scale": int(scale), "num_episodes": start,
             "ppo_run": None if ppo_run is None else os.fspath(ppo_run),
-            "fallback": fallback, "sources": described}
+            "fallback": fallback, "sources": described, **_cut_metadata(cut_at_collision)}
     ds = odata.concatenate(*parts, metadata=meta)
     _, summary = odata.episode_statistics(ds)
     return ds.replace(metadata=ds.metadata.updated(summary=summary))

@@ -1,0 +1,199 @@
+"""Chapter-8 data: wrong rewards, terminal handling, length bias and the positive-data-bias
+estimate (thesis §8.3 "Why offline RL can learn right behaviours from wrong rewards", §8.4.1;
+ANCHOR_FACTS §5).
+
+* **Wrong rewards** (§8.4.1): the true reward (``"original"``), the zero reward, i.i.d.
+  ``U[0, 1]`` rewards and the negated reward — :data:`REWARD_VARIANTS`, applied with
+  :func:`offline.data.relabel_rewards`.
+* **Terminal handling** (ANCHOR_FACTS §5, "report both settings"): ``"keep"`` the collision
+  terminals (absorbing, ``d = 1`` in the Bellman target) or ``"remove"`` them
+  (:func:`offline.scenarios.terminals_as_timeouts`: the learner bootstraps through them) —
+  :data:`TERMINAL_MODES`.
+* :func:`variant` builds one (reward, terminals) combination of a dataset and records it in the
+  metadata (``metadata["survival_variant"]``); :func:`variants` yields all eight of one dataset,
+  :func:`variant_grid` those of every recipe dataset of :func:`offline.collect.collect_recipe`.
+* **Length bias** (§8.3.3, Fig 8.5): :func:`length_bias_statistics` gives the per-episode
+  (length, return) scatter, their correlation, the fraction of cut episodes and the mean length
+  of successful vs failed episodes. Datasets *without* length bias come from
+  ``offline.collect.collect_recipe(..., cut_at_collision=False)`` (every episode runs the full
+  horizon, like D4RL's halfcheetah in §8.4.1).
+* **Positive data bias** (eq 8.3): :func:`positive_data_bias`.
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Iterator, Mapping
+from typing import Any
+
+import jax
+import numpy as np
+
+from offline import data as odata
+from offline.scenarios import terminals_as_timeouts
+
+#: Data rewards of thesis §8.4.1: the true one and the three wrong ones.
+REWARD_VARIANTS = ("original", "zero", "random", "negated")
+#: What happens to collision terminals: kept (absorbing) or turned into timeouts.
+TERMINAL_MODES = ("keep", "remove")
+#: The wrong rewards eq 8.3 takes the worst score over.
+WRONG_REWARDS = ("zero", "random", "negated")
+
+
+def variant_name(reward: str, terminals: str) -> str:
+    """The name of a (reward, terminals) combination, e.g. ``"zero-keep"``."""
+    _check_variant(reward, terminals)
+    return f"{reward}-{terminals}"
+
+
+def _check_variant(reward: str, terminals: str) -> None:
+    if reward not in REWARD_VARIANTS:
+        raise ValueError(f"reward must be one of {list(REWARD_VARIANTS)}, got {reward!r}")
+    if terminals not in TERMINAL_MODES:
+        raise ValueError(f"terminals must be one of {list(TERMINAL_MODES)}, got {terminals!r}")
+
+
+def variant(dataset: odata.Dataset, reward: str, terminals: str,
+            key: jax.Array | None = None) -> odata.Dataset:
+    """``dataset`` with the data reward ``reward`` and terminal handling ``terminals``.
+
+    ``reward``: ``"original"`` keeps the rewards; ``"zero"`` (all 0), ``"random"`` (i.i.d.
+    ``U[0, 1]`` from ``key``, required) and ``"negated"`` (``−r``) are the wrong rewards of
+    thesis §8.4.1 (:func:`offline.data.relabel_rewards`, which also appends to
+    ``metadata["reward_relabel"]``). ``terminals``: ``"keep"`` or ``"remove"`` (every terminal
+    becomes a timeout, :func:`offline.scenarios.terminals_as_timeouts`). The result's
+    ``metadata["survival_variant"]`` is ``{"name", "reward", "terminals"}``.
+    """
+    _check_variant(reward, terminals)
+    odata.validate(dataset)
+    out = dataset if reward == "original" else odata.relabel_rewards(dataset, reward, key=key)
+    if terminals == "remove":
+        out = terminals_as_timeouts(out)
+    return out.replace(metadata=out.metadata.updated(survival_variant={
+        "name": variant_name(reward, terminals), "reward": reward, "terminals": terminals}))
+
+
+def variants(dataset: odata.Dataset, key: jax.Array) -> Iterator[tuple[str, odata.Dataset]]:
+    """Every ``(name, variant(dataset, reward, terminals, key))``, rewards outer, in the order
+    of :data:`REWARD_VARIANTS` × :data:`TERMINAL_MODES`. Both terminal modes of ``"random"``
+    use ``key``, so they carry the same random rewards and differ only in their flags."""
+    for reward in REWARD_VARIANTS:
+        for terminals in TERMINAL_MODES:
+            yield variant_name(reward, terminals), variant(dataset, reward, terminals, key)
+
+
+def variant_grid(datasets: Mapping[str, odata.Dataset], key: jax.Array
+                 ) -> Iterator[tuple[str, str, odata.Dataset]]:
+    """``(recipe, variant name, dataset)`` for every dataset of ``datasets`` (e.g. recipe name
+    → :func:`offline.collect.collect_recipe` dataset) and every variant (:func:`variants`).
+    Recipe ``r`` draws its random rewards from ``fold_in(key, crc32(r))``, so a recipe's
+    variants do not depend on which other recipes are in the grid."""
+    for recipe, ds in datasets.items():
+        sub = jax.random.fold_in(key, zlib.crc32(recipe.encode()) & 0x7FFFFFFF)
+        for name, out in variants(ds, sub):
+            yield recipe, name, out
+
+
+def _mean_or_nan(x: np.ndarray) -> float:
+    return float(x.mean()) if x.size else float("nan")
+
+
+def length_bias_statistics(dataset: odata.Dataset, *, success: Any = None,
+                           success_quantile: float = 0.75) -> dict[str, Any]:
+    """The length bias of ``dataset`` (thesis §8.3.3 and Fig 8.5), as a JSON-ready dict.
+
+    * ``episode_ids``, ``lengths``, ``returns`` — the Fig 8.5 scatter (one point per episode:
+      length, undiscounted true return), in order of appearance;
+    * ``length_return_correlation`` — Pearson correlation of length and return; NaN when it is
+      undefined (fewer than two episodes, or all lengths or all returns equal — e.g. a dataset
+      collected with ``cut_at_collision=False``, where every episode has the horizon's length);
+    * ``cut_fraction`` — fraction of episodes ending in a terminal (cut at a collision);
+    * ``mean_length_success`` / ``mean_length_failure`` (NaN for an empty group) and
+      ``num_success``. Success per episode is ``success`` when given (a boolean array with one
+      entry per episode, e.g. ``offline.collect.rollout(...)["episode"]["success"]``;
+      ``success_source = "given"``). The collector's metadata holds only aggregate success
+      rates, not per-episode flags, so otherwise the episodes whose return is at least the
+      ``success_quantile`` quantile of the returns (NumPy's linear interpolation; ties all
+      count) are called successful (``success_source = "top_return_quantile"``, threshold in
+      ``success_threshold``).
+
+    Returns must be the true ones: a dataset whose rewards were relabelled
+    (``metadata["reward_relabel"]``) raises ``ValueError``.
+    """
+    odata.validate(dataset)
+    if dataset.metadata.get("reward_relabel"):
+        raise ValueError(f"dataset rewards were relabelled ({dataset.metadata['reward_relabel']})"
+                         f"; length_bias_statistics needs the true rewards")
+    if not 0.0 <= float(success_quantile) <= 1.0:
+        raise ValueError(f"success_quantile must lie in [0, 1], got {success_quantile!r}")
+    per, _ = odata.episode_statistics(dataset)
+    k = per.episode_ids.size
+    lengths, returns = per.lengths.astype(np.float64), per.returns
+    threshold = None
+    if success is not None:
+        won = np.asarray(success)
+        if won.shape != (k,) or won.dtype != np.bool_:
+            raise ValueError(f"success must be a boolean array of shape (num_episodes,) = "
+                             f"({k},), got dtype {won.dtype} and shape {won.shape}")
+        source = "given"
+    else:
+        threshold = float(np.quantile(returns, success_quantile)) if k else float("nan")
+        won = returns >= threshold
+        source = "top_return_quantile"
+    defined = k >= 2 and np.ptp(lengths) > 0 and np.ptp(returns) > 0
+    corr = float(np.corrcoef(lengths, returns)[0, 1]) if defined else float("nan")
+    return {
+        "num_episodes": int(k),
+        "episode_ids": per.episode_ids.tolist(),
+        "lengths": per.lengths.tolist(),
+        "returns": returns.tolist(),
+        "length_return_correlation": corr,
+        "cut_fraction": _mean_or_nan(per.terminated.astype(np.float64)),
+        "success_source": source,
+        "success_threshold": threshold,
+        "num_success": int(won.sum()),
+        "mean_length_success": _mean_or_nan(lengths[won]),
+        "mean_length_failure": _mean_or_nan(lengths[~won]),
+    }
+
+
+def positive_data_bias(scores: Mapping[str, float], *, optimal: float = 100.0) -> float:
+    """The empirical positive-data-bias estimate of thesis eq 8.3 (Fig 8.6, ANCHOR_FACTS §5):
+
+    ``Ĵ* / max(Ĵ* − min(J_zero, J_random, J_negated), 0)``
+
+    with ``scores`` the true-reward scores of the policies learned with the wrong rewards
+    (keys ``"zero"``, ``"random"``, ``"negated"``; other keys such as ``"original"`` are
+    ignored) and ``optimal = Ĵ*`` (100 for normalised scores: expert 100, random 0). It is
+    ``inf`` when a wrong-reward score reaches (or exceeds) ``Ĵ*``; larger means a stronger
+    positive bias, 1 when the worst wrong-reward score is 0.
+    """
+    if not isinstance(scores, Mapping):
+        raise ValueError(f"scores must be a mapping from reward name to score, got "
+                         f"{type(scores).__name__}")
+    missing = [r for r in WRONG_REWARDS if r not in scores]
+    if missing:
+        raise ValueError(f"scores lacks the wrong-reward score(s) {missing}; eq 8.3 needs "
+                         f"{list(WRONG_REWARDS)}")
+    values = {r: float(scores[r]) for r in WRONG_REWARDS}
+    bad = {r: v for r, v in values.items() if not np.isfinite(v)}
+    if bad:
+        raise ValueError(f"scores must be finite, got {bad}")
+    if not (np.isfinite(optimal) and optimal > 0):
+        raise ValueError(f"optimal (the estimated optimal score J*) must be finite and > 0, "
+                         f"got {optimal!r}")
+    gap = max(float(optimal) - min(values.values()), 0.0)
+    return float("inf") if gap == 0.0 else float(optimal) / gap
+
+
+__all__ = [
+    "REWARD_VARIANTS",
+    "TERMINAL_MODES",
+    "WRONG_REWARDS",
+    "length_bias_statistics",
+    "positive_data_bias",
+    "variant",
+    "variant_grid",
+    "variant_name",
+    "variants",
+]

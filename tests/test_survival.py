@@ -1,0 +1,201 @@
+"""Chapter-8 data (offline/survival.py) and datasets without length bias
+(``offline.collect`` with ``cut_at_collision=False``).
+
+The collected data: 8 episodes of the noisy expert (σ = 3) on 3-link env3 with a 150-step
+horizon, seed 2 — one episode collides (at step 94), the others time out. Each cut mode
+compiles one program (batch 8), shared by :func:`collect`, :func:`rollout` and the recipe.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import numpy as np
+import pytest
+
+import mjxrmp  # noqa: F401  (XLA flags first)
+from offline import collect as oc
+from offline import data as odata
+from offline import survival as sv
+
+ENV, HORIZON, BATCH, SEED = "three_link/env3", 150, 8, 2
+BEHAVIOUR = oc.noisy_expert(3.0)
+
+
+def _handmade() -> odata.Dataset:
+    """Episodes of lengths 1, 3, 2 (ids 0, 5, 7): a terminal, a timeout, a terminal."""
+    rewards = np.array([0.5, 1.0, -2.0, 0.25, 3.0, -1.0], np.float32)
+    term = np.array([1, 0, 0, 0, 0, 1], bool)
+    tout = np.array([0, 0, 0, 1, 0, 0], bool)
+    ids = np.array([0, 5, 5, 5, 7, 7])
+    obs = np.arange(12, dtype=np.float32).reshape(6, 2)
+    return odata.create(obs, obs[:, :1] * 0.5, rewards, obs + 1.0, term, tout, ids,
+                        metadata={"recipe": "handmade"})
+
+
+@pytest.fixture(scope="module")
+def collected():
+    key = jax.random.PRNGKey(SEED)
+    out = {}
+    for cut in (True, False):
+        ds = oc.collect(ENV, BEHAVIOUR, BATCH, key=key, seed=SEED, horizon=HORIZON,
+                        batch_size=BATCH, cut_at_collision=cut)
+        traj = oc.rollout(ENV, BEHAVIOUR, BATCH, key, horizon=HORIZON, batch_size=BATCH,
+                          cut_at_collision=cut)
+        out[cut] = (ds, traj)
+    return out
+
+
+def test_variants_rewards_flags_and_metadata():
+    ds = _handmade()
+    key = jax.random.PRNGKey(3)
+    got = dict(sv.variants(ds, key))
+    assert list(got) == [f"{r}-{t}" for r in sv.REWARD_VARIANTS for t in sv.TERMINAL_MODES]
+    r64 = np.asarray(ds.rewards, np.float64)
+    expected_random = np.asarray(jax.random.uniform(key, (ds.size,)), np.float64)
+    expected = {"original": r64, "zero": np.zeros(6), "negated": -r64, "random": expected_random}
+    term, tout = np.asarray(ds.terminals), np.asarray(ds.timeouts)
+    for name, v in got.items():
+        reward, terminals = name.split("-")
+        odata.validate(v)
+        np.testing.assert_array_equal(np.asarray(v.rewards, np.float64), expected[reward])
+        assert v.rewards.dtype == ds.rewards.dtype
+        if terminals == "keep":
+            np.testing.assert_array_equal(v.terminals, term)
+            np.testing.assert_array_equal(v.timeouts, tout)
+        else:
+            assert not np.asarray(v.terminals).any()
+            np.testing.assert_array_equal(v.timeouts, term | tout)
+            assert v.metadata["terminals_as_timeouts"] is True
+        assert v.metadata["survival_variant"] == {"name": name, "reward": reward,
+                                                  "terminals": terminals}
+        assert v.metadata.get("reward_relabel", []) == ([] if reward == "original" else [reward])
+        assert v.metadata["recipe"] == "handmade"
+        for f in ("observations", "actions", "next_observations", "episode_ids"):
+            np.testing.assert_array_equal(getattr(v, f), getattr(ds, f))
+    assert ((expected_random >= 0) & (expected_random < 1)).all()
+    # Both terminal modes of "random" share the rewards.
+    np.testing.assert_array_equal(got["random-keep"].rewards, got["random-remove"].rewards)
+
+
+def test_variant_errors_and_grid():
+    ds = _handmade()
+    with pytest.raises(ValueError, match="reward must be one of"):
+        sv.variant(ds, "inverted", "keep")
+    with pytest.raises(ValueError, match="terminals must be one of"):
+        sv.variant(ds, "zero", "drop")
+    with pytest.raises(ValueError, match="PRNG key"):
+        sv.variant(ds, "random", "keep")
+    key = jax.random.PRNGKey(0)
+    grid = list(sv.variant_grid({"a": ds, "b": ds}, key))
+    assert [(r, n) for r, n, _ in grid] == [(r, f"{w}-{t}") for r in "ab"
+                                            for w in sv.REWARD_VARIANTS for t in sv.TERMINAL_MODES]
+    rand = {r: np.asarray(d.rewards) for r, n, d in grid if n == "random-keep"}
+    assert not np.array_equal(rand["a"], rand["b"])  # independent keys per recipe
+    alone = dict((n, d) for _, n, d in sv.variant_grid({"b": ds}, key))
+    np.testing.assert_array_equal(alone["random-keep"].rewards, rand["b"])
+
+
+@pytest.mark.parametrize("scores, expected", [
+    ({"zero": 50.0, "random": 80.0, "negated": 60.0}, 100.0 / 50.0),
+    ({"zero": 0.0, "random": 0.0, "negated": 0.0, "original": 90.0}, 1.0),
+    ({"zero": -20.0, "random": 100.0, "negated": 95.0}, 100.0 / 120.0),
+    ({"zero": 100.0, "random": 100.0, "negated": 100.0}, math.inf),
+    ({"zero": 120.0, "random": 101.0, "negated": 150.0}, math.inf),
+    ({"zero": 99.0, "random": 100.0, "negated": 99.5}, 100.0),
+])
+def test_positive_data_bias_hand_computed(scores, expected):
+    got = sv.positive_data_bias(scores)
+    assert got == pytest.approx(expected, rel=1e-12) if math.isfinite(expected) else got == expected
+
+
+def test_positive_data_bias_errors_and_optimal():
+    assert sv.positive_data_bias({"zero": 1.0, "random": 2.0, "negated": 3.0},
+                                 optimal=4.0) == pytest.approx(4.0 / 3.0)
+    with pytest.raises(ValueError, match=r"lacks the wrong-reward score\(s\) \['negated'\]"):
+        sv.positive_data_bias({"zero": 1.0, "random": 2.0, "negative": 3.0})
+    with pytest.raises(ValueError, match="finite"):
+        sv.positive_data_bias({"zero": float("nan"), "random": 2.0, "negated": 3.0})
+    with pytest.raises(ValueError, match="optimal"):
+        sv.positive_data_bias({"zero": 1.0, "random": 2.0, "negated": 3.0}, optimal=0.0)
+    with pytest.raises(ValueError, match="mapping"):
+        sv.positive_data_bias([1.0, 2.0, 3.0])
+
+
+def test_length_bias_statistics_hand_computed():
+    ds = _handmade()
+    s = sv.length_bias_statistics(ds)
+    lengths, returns = np.array([1.0, 3.0, 2.0]), np.array([0.5, -0.75, 2.0])
+    assert s["episode_ids"] == [0, 5, 7] and s["lengths"] == [1, 3, 2]
+    np.testing.assert_allclose(s["returns"], returns, rtol=1e-6)
+    dl, dr = lengths - lengths.mean(), returns - returns.mean()
+    corr = (dl @ dr) / math.sqrt((dl @ dl) * (dr @ dr))
+    assert s["length_return_correlation"] == pytest.approx(corr, rel=1e-6)
+    assert s["cut_fraction"] == pytest.approx(2.0 / 3.0)
+    # Quantile 0.75 of (−0.75, 0.5, 2.0) = 0.5 + 0.5·(2.0 − 0.5) = 1.25: only episode 7 wins.
+    assert s["success_source"] == "top_return_quantile"
+    assert s["success_threshold"] == pytest.approx(1.25, rel=1e-6)
+    assert s["num_success"] == 1
+    assert s["mean_length_success"] == 2.0 and s["mean_length_failure"] == 2.0
+    given = sv.length_bias_statistics(ds, success=np.array([False, True, True]))
+    assert given["success_source"] == "given" and given["success_threshold"] is None
+    assert given["mean_length_success"] == 2.5 and given["mean_length_failure"] == 1.0
+    none = sv.length_bias_statistics(ds, success=np.zeros(3, bool))
+    assert math.isnan(none["mean_length_success"]) and none["mean_length_failure"] == 2.0
+    with pytest.raises(ValueError, match="success must be a boolean array"):
+        sv.length_bias_statistics(ds, success=np.array([1, 0, 1]))
+    with pytest.raises(ValueError, match="relabelled"):
+        sv.length_bias_statistics(sv.variant(ds, "zero", "keep"))
+    with pytest.raises(ValueError, match="success_quantile"):
+        sv.length_bias_statistics(ds, success_quantile=1.5)
+    # Equal lengths: the correlation is undefined (no length bias to measure).
+    equal = ds.replace(episode_ids=np.array([0, 0, 1, 1, 2, 2], np.int32),
+                       terminals=np.array([0, 1, 0, 0, 0, 1], bool),
+                       timeouts=np.array([0, 0, 0, 1, 0, 0], bool))
+    assert math.isnan(sv.length_bias_statistics(equal)["length_return_correlation"])
+
+
+def test_cut_dataset_has_variable_lengths_and_collision_terminals(collected):
+    ds, traj = collected[True]
+    ep = traj["episode"]
+    assert "cut_at_collision" not in ds.metadata  # default datasets are unchanged
+    per, _ = odata.episode_statistics(ds)
+    assert 0 < (ep["collided"] > 0).sum() < BATCH, "the seed must give collisions and timeouts"
+    np.testing.assert_array_equal(per.terminated, ep["collided"] > 0)
+    assert per.lengths.min() < HORIZON == per.lengths.max()
+    np.testing.assert_array_equal(per.lengths[~per.terminated], HORIZON)
+    s = sv.length_bias_statistics(ds, success=ep["success"].astype(bool))
+    assert s["cut_fraction"] == pytest.approx((ep["collided"] > 0).mean())
+
+
+def test_uncut_dataset_has_full_horizon_episodes_and_no_terminals(collected):
+    (cut, cut_traj), (ds, traj) = collected[True], collected[False]
+    ep = traj["episode"]
+    assert ds.metadata["cut_at_collision"] is False
+    per, _ = odata.episode_statistics(ds)
+    np.testing.assert_array_equal(per.lengths, HORIZON)
+    assert not np.asarray(ds.terminals).any() and per.timed_out.all()
+    assert ds.size == BATCH * HORIZON
+    # Collisions are still recorded (per step and per episode), not as terminals.
+    collided = ep["collided"] > 0
+    np.testing.assert_array_equal(collided, cut_traj["episode"]["collided"] > 0)
+    assert ((traj["collision"] > 0).any(axis=0) == collided).all()
+    assert not (ep["safe"][collided]).any()
+    s = sv.length_bias_statistics(ds)
+    assert s["cut_fraction"] == 0.0 and math.isnan(s["length_return_correlation"])
+    # Up to the collision the episodes are the cut ones, transition for transition.
+    cut_per, _ = odata.episode_statistics(cut)
+    starts = np.concatenate([[0], np.cumsum(cut_per.lengths)[:-1]])
+    for i, (start, n) in enumerate(zip(starts, cut_per.lengths, strict=True)):
+        rows = slice(i * HORIZON, i * HORIZON + n)
+        for f in ("observations", "actions", "rewards", "next_observations"):
+            np.testing.assert_array_equal(np.asarray(getattr(ds, f))[rows],
+                                          np.asarray(getattr(cut, f))[start:start + n])
+    # The recipe passes the flag through (same compiled program: batch = scale = 8).
+    rec = oc.collect_recipe(ENV, "random", BATCH, seed=SEED, horizon=HORIZON,
+                            cut_at_collision=False)
+    assert rec.metadata["cut_at_collision"] is False
+    np.testing.assert_array_equal(odata.episode_statistics(rec)[0].lengths, HORIZON)
+    with pytest.raises(ValueError, match="cut_at_collision must be a bool"):
+        oc.rollout(ENV, BEHAVIOUR, 1, jax.random.PRNGKey(0), cut_at_collision=0)
