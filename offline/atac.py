@@ -52,7 +52,7 @@ import optax
 
 from offline import data as odata
 from offline import scenarios
-from offline.learner import Trainer, action_scale
+from offline.learner import Trainer, action_scale, normalized_dataset, policy_act, scan_steps
 from offline.networks import FROBENIUS_BOUND, QEnsemble, polyak, project_frobenius
 from offline.tanh_gaussian import TanhGaussianPolicy
 
@@ -229,17 +229,14 @@ class ATACState(NamedTuple):
 
 
 def prepare_dataset(dataset: odata.Dataset, remove_terminals: bool) -> odata.Dataset:
-    """Validate, divide the actions by :func:`~offline.learner.action_scale`, cast the float
-    fields to float32, optionally turn terminals into timeouts, and put it on the device."""
-    odata.validate(dataset, name="dynamics")
-    if dataset.size == 0:
-        raise ValueError("dynamics must contain at least one transition")
+    """Optionally turn terminals into timeouts, cast the float fields to float32, then
+    :func:`offline.learner.normalized_dataset` (validate, divide the actions by the action
+    limit, put it on the device)."""
     if remove_terminals:
-        dataset = scenarios.terminals_as_timeouts(dataset)
+        dataset = scenarios.terminals_as_timeouts(odata.validate(dataset, name="dynamics"))
     f32 = {f: np.asarray(getattr(dataset, f), np.float32)
-           for f in ("observations", "rewards", "next_observations")}
-    acts = np.asarray(dataset.actions, np.float32) / np.float32(action_scale(dataset))
-    return jax.device_put(dataset.replace(actions=acts, **f32))
+           for f in ("observations", "actions", "rewards", "next_observations")}
+    return normalized_dataset(dataset.replace(**f32))[0]
 
 
 def make_core(dynamics: odata.Dataset, config: ATACConfig, reward: RewardModel, *,
@@ -293,7 +290,7 @@ def make_core(dynamics: odata.Dataset, config: ATACConfig, reward: RewardModel, 
         return ATACState(params, params["critic"], opt_states, k_run,
                          jnp.zeros((), jnp.int32), jnp.asarray(b, jnp.float32))
 
-    def step(state: ATACState, _) -> tuple[ATACState, dict]:
+    def step(state: ATACState, key: jax.Array) -> tuple[ATACState, dict]:
         in_warm = state.step < warm
         # The warm-start switch: fresh actor Adam moments, temperature reset.
         switch = state.step == warm
@@ -303,8 +300,7 @@ def make_core(dynamics: odata.Dataset, config: ATACConfig, reward: RewardModel, 
         actor_os, log_alpha, alpha_os = jax.tree.map(
             lambda f, c: jnp.where(switch, f, c), fresh, current)
 
-        k_batch, k_next, k_pi, k_reward = jax.random.split(
-            jax.random.fold_in(state.key, state.step), 4)
+        k_batch, k_next, k_pi, k_reward = jax.random.split(key, 4)
         batch = odata.sample(ds, k_batch, bsz)
         p = state.params
         a_next, _ = actor.apply(p["actor"], batch.next_observations).sample(k_next)
@@ -379,18 +375,13 @@ def make_core(dynamics: odata.Dataset, config: ATACConfig, reward: RewardModel, 
         lr = jnp.where(in_warm, config.bc_lr, config.actor_lr)
         new_params["actor"] = jax.tree.map(lambda x, u: x - lr * u, p["actor"], upd)
         metrics.update(actor_loss=act_loss, alpha=alpha, entropy=entropy)
-        new_state = ATACState(new_params, new_target, new_os, state.key, state.step + 1,
-                              state.beta)
+        new_state = ATACState(new_params, new_target, new_os, state.key, state.step, state.beta)
         return new_state, metrics
 
     def run(state: ATACState, n: int) -> tuple[ATACState, dict]:
-        _check_int("n", n, 0)
-        return jax.lax.scan(step, state, None, length=int(n))
+        return scan_steps(step, state, n)
 
-    def act(actor_params: Any, obs: jax.Array) -> jax.Array:
-        return scale * actor.apply(actor_params, obs).mode()
-
-    return Trainer(init=init, run=run, act=act, num_steps=config.num_steps)
+    return Trainer(init=init, run=run, act=policy_act(actor, scale), num_steps=config.num_steps)
 
 
 def check_no_reward_data(reward_data: Any, learner: str) -> None:

@@ -37,16 +37,19 @@ import optax
 from offline import data as odata
 from offline.inverse_dynamics import (
     InverseDynamicsConfig,
+    make_inverse_dynamics,
+)
+from offline.learner import (
+    Trainer,
+    action_scale,
     adam_step,
     check_network,
     check_positive_float,
     check_positive_int,
-    make_inverse_dynamics,
     normalized_dataset,
     policy_act,
     scan_steps,
 )
-from offline.learner import Trainer, action_scale
 from offline.scenarios import RewardData, validate_reward_data
 from offline.tanh_gaussian import TanhGaussianPolicy
 

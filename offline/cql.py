@@ -43,7 +43,8 @@ import jax.numpy as jnp
 import optax
 
 from offline import data as odata
-from offline.inverse_dynamics import (
+from offline.learner import (
+    Trainer,
     adam_step,
     check_fraction,
     check_network,
@@ -53,7 +54,6 @@ from offline.inverse_dynamics import (
     policy_act,
     scan_steps,
 )
-from offline.learner import Trainer
 from offline.networks import QEnsemble, polyak
 from offline.scenarios import RewardData
 from offline.tanh_gaussian import TanhGaussianPolicy

@@ -46,7 +46,7 @@ import numpy as np
 from envs.evaluate import hand_designed_policy, make_rollout
 from envs.reaching import ReachEnv
 from offline.collect import make_env
-from offline.inverse_dynamics import check_positive_int
+from offline.learner import check_positive_int
 
 #: Default number of episodes of the reference returns.
 REFERENCE_EPISODES = 256

@@ -36,7 +36,8 @@ import jax.numpy as jnp
 import optax
 
 from offline import data as odata
-from offline.inverse_dynamics import (
+from offline.learner import (
+    Trainer,
     adam_step,
     check_fraction,
     check_network,
@@ -46,7 +47,6 @@ from offline.inverse_dynamics import (
     policy_act,
     scan_steps,
 )
-from offline.learner import Trainer
 from offline.networks import QEnsemble, StateNet, polyak
 from offline.scenarios import RewardData
 from offline.tanh_gaussian import TanhGaussianPolicy

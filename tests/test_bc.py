@@ -13,7 +13,9 @@ from offline.inverse_dynamics import (
     label_actions,
     make_inverse_dynamics,
 )
-from offline.learner import actor_params
+from offline.learner import (
+    actor_params,
+)
 
 LIMIT = 2.0  # action_limit recorded in the metadata: learners must divide and multiply by it
 DT = 0.1
