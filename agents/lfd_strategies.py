@@ -55,6 +55,10 @@ and (weighted) samples.
   on the learned flow).
 * ``"single_link"`` — the single-link baseline of §5.3.2: only the centre control point, learned
   independently.
+* ``"two_step"`` — the two-step strategy of §5.2 (a nominal-demonstration potential per control
+  point, then a Cholesky metric by eq 5.6; no flows): trained by :mod:`agents.lfd_two_step`
+  (its potential fit runs on the host, so :func:`make_train` refuses it); executed here, with
+  the leaf ``(G_k, −∇Φ_k)`` in place of the flow-based learned leaf.
 
 **Execution** (:func:`policy_velocity`, :func:`rollout`): (*) evaluated by
 :func:`mjxrmp.rmp2.pullback_velocity` (Jacobians by forward-mode autodiff through FK and the
@@ -97,7 +101,7 @@ from mjxrmp.leaves import CollisionParams
 from mjxrmp.rmp import RMP
 from mjxrmp.robots import franka
 
-STRATEGIES = ("cspace", "independent", "joint", "single_link")
+STRATEGIES = ("cspace", "independent", "joint", "single_link", "two_step")
 #: Strategies fitted leaf by leaf (eq 5.3) rather than through the resolve (eqs 5.2, 5.4).
 INDEPENDENT_STRATEGIES = ("independent", "single_link")
 DOF = franka.FRANKA.dof
@@ -491,6 +495,9 @@ def make_train(config: StrategyConfig) -> Callable[[jax.Array, Samples], Strateg
     keys (seeds) and/or ``samples.w`` (demonstration subsets)."""
     if not isinstance(config, StrategyConfig):
         raise TypeError(f"config must be a StrategyConfig, got {type(config)}")
+    if config.strategy == "two_step":
+        raise ValueError("strategy 'two_step' needs the nominal potentials of its training "
+                         "demonstrations: train it with agents.lfd_two_step.train_folds")
 
     def check(samples: Samples) -> None:
         K, m = config.num_leaves, config.leaf_dim
@@ -661,14 +668,23 @@ def policy_velocity(config: StrategyConfig, result: StrategyResult, q: jax.Array
     """
     s, k = config.strategy, config.point
 
-    def learned_map(q_):
-        x = task_coordinates(s, k, q_, goals, q_goal)
-        return latent_leaves(config, result.params, result.constants, x)[0]
+    if s == "two_step":
+        from agents import lfd_two_step  # builds on this module: imported where it is used
 
-    def learned_leaf(y):
-        G = jax.vmap(lambda mp, yk: config.metric.apply({"params": mp}, yk))(
-            result.params["metric"], y)
-        return RMP(G, -config.latent_gain * y)
+        def learned_map(q_):
+            return task_coordinates(s, k, q_, goals, q_goal)
+
+        def learned_leaf(y):
+            return lfd_two_step.leaf_rmps(config, result, y)
+    else:
+        def learned_map(q_):
+            x = task_coordinates(s, k, q_, goals, q_goal)
+            return latent_leaves(config, result.params, result.constants, x)[0]
+
+        def learned_leaf(y):
+            G = jax.vmap(lambda mp, yk: config.metric.apply({"params": mp}, yk))(
+                result.params["metric"], y)
+            return RMP(G, -config.latent_gain * y)
 
     def default_leaf(x, w, gain):
         eye = jnp.broadcast_to(jnp.eye(x.shape[-1], dtype=x.dtype), (*x.shape, x.shape[-1]))

@@ -3,14 +3,18 @@
 Usage::
 
     python scripts/lfd_franka.py [--tasks door_reaching drawer_closing] \\
-        [--strategies cspace independent joint single_link] [--preset cpu|thesis] \\
+        [--strategies cspace independent joint single_link two_step] [--preset cpu|thesis] \\
         [--root /work/shared/data/franka_demos] [--out results/lfd_franka] \\
         [--figures docs/figures] [--seed 0]
     python scripts/lfd_franka.py --quick --out /tmp/x --figures /tmp/x     # seconds (tests)
 
 For each task (door reaching, drawer closing; 6 demonstrations each, thesis §5.2.3) and each
 strategy of :mod:`agents.lfd_strategies` (configuration-space regression, independent per-subtask
-learning, joint learning through the velocity-form RMP², single-link learning):
+learning, joint learning through the velocity-form RMP², single-link learning, and the two-step
+strategy of §5.2 — nominal-demonstration potential, then a metric by eq 5.6 — of
+:mod:`agents.lfd_two_step`, whose potentials are fitted per fold on the host before the folds'
+metrics train in one program; its "flow" loss is eq 4.12's objective, and its folds record the
+nominal demonstration of each control point):
 
 * **leave-one-out**: for every demonstration ``f`` a policy is trained on the other five. All
   folds are one compiled program (``vmap`` over the folds' sample weights and keys
@@ -66,6 +70,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import math
 import os
@@ -84,13 +89,14 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from agents import lfd_strategies as L  # noqa: E402
+from agents import lfd_two_step  # noqa: E402
 from mjxrmp import traj_metrics  # noqa: E402
 from mjxrmp.data import franka_demos  # noqa: E402
 from mjxrmp.geometry import make_obstacles, point_obstacle_distances  # noqa: E402
 from mjxrmp.robots import franka  # noqa: E402
 
 LABELS = {"cspace": "C-space", "independent": "Independent", "joint": "Joint (RMP²)",
-          "single_link": "Single link"}
+          "single_link": "Single link", "two_step": "Two-step (§5.2)"}
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -229,7 +235,12 @@ def run_strategy(args, cfg, stacked, demos, folds, starts, obstacle_centers, hor
     W = jax.vmap(lambda tr: L.fold_weights(stacked.mask, tr))(train_sets)
     keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(args.seed), f) for f in folds])
     t0 = time.time()
-    result = jax.block_until_ready(L.fold_trainer(cfg)(keys, samples, W))
+    nominal = None
+    if cfg.strategy == "two_step":
+        result, nominal = lfd_two_step.train_folds(cfg, stacked, samples, train_sets, keys)
+    else:
+        result = L.fold_trainer(cfg)(keys, samples, W)
+    result = jax.block_until_ready(result)
     train_s = time.time() - t0
     log(f"    trained {F} folds in {train_s:.1f} s; final losses flow "
         f"{np.asarray(result.flow_losses[:, -1]).mean():.4g}"
@@ -323,6 +334,10 @@ def run_strategy(args, cfg, stacked, demos, folds, starts, obstacle_centers, hor
         "joint_limit_violations": sum(p["joint_limit_violations"] for p in per_fold),
         "folds": per_fold,
     }
+    if nominal is not None:
+        out["nominal_settings"] = dataclasses.asdict(lfd_two_step.NominalSettings())
+        for p, idx in zip(per_fold, np.asarray(nominal.index), strict=True):
+            p["nominal_per_point"] = [int(i) for i in idx]
     log(f"    error {out['mean_position_error'] * 100:.2f} ± "
         f"{out['mean_position_error_std'] * 100:.2f} cm, success {out['success_rate']:.0%}, "
         f"with obstacle {out['success_rate_obstacle']:.0%}, without the posture leaf "
