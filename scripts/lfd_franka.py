@@ -62,7 +62,8 @@ figures ``lfd_franka_<task>.png`` (demonstrated vs reproduced control-point tria
 centre paths, 3-D, as Figs 5.1/5.4) and ``lfd_franka_errors.png`` (box plots of the errors and
 success rates per strategy, as Fig 5.7) to ``--figures``. The default (CPU preset, 2 tasks × 4
 strategies × 6 folds) took 6.4–6.7 minutes on 2 CPU cores shared with other jobs (load ≈ 1–3; 11.3
-minutes at load ≈ 4.2);
+minutes at load ≈ 4.2) before ``two_step`` was added; ``--strategies two_step`` alone (both
+tasks, ``results/lfd_franka_two_step``) takes 56 s;
 ``--preset thesis`` uses the full model sizes and iteration counts (hours on a CPU).
 """
 
