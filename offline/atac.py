@@ -228,13 +228,21 @@ class ATACState(NamedTuple):
     beta: jax.Array
 
 
+def _as_float32(x: Any) -> Any:
+    """``x`` as float32: a NumPy array, or a traced array cast in the graph (e.g. rewards
+    vmapped over reward variants, ``offline.sweep``)."""
+    if isinstance(x, jax.core.Tracer):
+        return x.astype(jnp.float32)
+    return np.asarray(x, np.float32)
+
+
 def prepare_dataset(dataset: odata.Dataset, remove_terminals: bool) -> odata.Dataset:
     """Optionally turn terminals into timeouts, cast the float fields to float32, then
     :func:`offline.learner.normalized_dataset` (validate, divide the actions by the action
     limit, put it on the device)."""
     if remove_terminals:
         dataset = scenarios.terminals_as_timeouts(odata.validate(dataset, name="dynamics"))
-    f32 = {f: np.asarray(getattr(dataset, f), np.float32)
+    f32 = {f: _as_float32(getattr(dataset, f))
            for f in ("observations", "actions", "rewards", "next_observations")}
     return normalized_dataset(dataset.replace(**f32))[0]
 
@@ -254,7 +262,7 @@ def make_core(dynamics: odata.Dataset, config: ATACConfig, reward: RewardModel, 
     scale = action_scale(dynamics)
     ds = prepare_dataset(dynamics, config.remove_terminals)
     obs_size, act_size = ds.observation_size, ds.action_size
-    if reward_range is None:
+    if reward_range is None and config.clip_v:
         r = np.asarray(ds.rewards)
         reward_range = (float(r.min()), float(r.max()))
     bounds = value_bounds(*reward_range, config.discount) if config.clip_v else None
