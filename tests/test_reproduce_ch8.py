@@ -1,0 +1,209 @@
+"""scripts/reproduce_ch8.py and offline/sweep.py: rewards × seeds vmapped in one program equal
+separate runs; the figures stage computes its acceptance checks from the results (hand-made
+results with known answers); the full CPU smoke end to end (slow)."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from offline import data as odata
+from offline import experiment, sweep
+from scripts import reproduce_ch8 as ch8
+
+WRONG = ("zero", "random", "negated")
+
+
+def _synthetic(n: int = 120, obs_size: int = 6, seed: int = 0) -> odata.Dataset:
+    rng = np.random.default_rng(seed)
+    obs = rng.normal(size=(n, obs_size)).astype(np.float32)
+    return odata.create(obs, rng.uniform(-1, 1, (n, 3)).astype(np.float32),
+                        rng.normal(size=n).astype(np.float32), obs + 0.1,
+                        np.arange(n) % 10 == 9, np.zeros(n, bool),
+                        (np.arange(n) // 10).astype(np.int32), metadata={"action_limit": 1.0})
+
+
+def test_reward_rows_are_the_survival_variants():
+    from offline import survival
+
+    ds = _synthetic()
+    key = sweep.reward_key(0, "x")
+    base, rows = sweep.reward_rows(ds, ["original", "random", "negated"], "remove", key)
+    np.testing.assert_array_equal(rows[0], ds.rewards)
+    np.testing.assert_array_equal(rows[1], survival.variant(ds, "random", "remove", key).rewards)
+    np.testing.assert_array_equal(rows[2], -np.asarray(ds.rewards))
+    assert not np.asarray(base.terminals).any()  # terminals removed in the base dataset
+    r, k = sweep.reward_seed_keys(rows[:2], [3, 4])
+    np.testing.assert_array_equal(r, rows[[0, 0, 1, 1]])
+    np.testing.assert_array_equal(k, experiment.seed_keys([3, 4, 3, 4]))
+    with pytest.raises(ValueError, match="learner"):
+        sweep.reward_batched("BC", ds, experiment.Budget(steps=10))
+
+
+@pytest.mark.parametrize("learner", ["ATAC", "IQL", "CQL"])
+def test_reward_batched_equals_separate_runs(learner):
+    """2 rewards × 2 seeds in one program; run (random reward, seed 1) equals the learner
+    built on the relabelled dataset and trained alone (concrete rewards, float32)."""
+    ds = _synthetic()
+    budget = experiment.Budget(steps=10, hidden=(8, 8), batch=16)
+    base, rows = sweep.reward_rows(ds, ["original", "random"], "keep", sweep.reward_key(0, "x"))
+    trainer = sweep.reward_batched(learner, base, budget)
+    state, _ = experiment.train_chunked(trainer, sweep.reward_seed_keys(rows, [0, 1]), 5)
+    batched = jax.tree.map(lambda x: x[3], sweep.run_actor_params(state))
+    alone = sweep.build_plain(learner, base.replace(rewards=rows[1]), budget)
+    final, _ = jax.jit(alone.train)(jax.random.PRNGKey(1))
+    jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6),
+                 batched, final.params["actor"])
+    # and the runs differ from each other (the reward and the seed both matter)
+    p = sweep.run_actor_params(state)
+    leaf = np.asarray(jax.tree.leaves(p)[-1])
+    assert not np.allclose(leaf[1], leaf[3]) and not np.allclose(leaf[2], leaf[3])
+
+
+# --------------------------------------------------------------------------------------------
+# Figures stage on hand-made results
+
+SCORES = {  # (dataset, learner) -> mean score per reward (original, zero, random, negated)
+    ("mixed-cut", "ATAC"): (90, 80, 70, 60),
+    ("mixed-cut", "PSPI"): (85, 100, 101, 100),
+    ("mixed-full", "ATAC"): (90, 20, 25, 15),
+    ("mixed-full", "PSPI"): (80, 30, 20, 10),
+    ("mixed-cut", "IQL"): (50, 40, 40, 40),
+}
+BC = {"mixed-cut": 40.0, "mixed-full": 20.0, "mixed-full-filtered": 30.0}
+SAFE = {("mixed-full", "BC"): 80.0, ("mixed-full", "ATAC"): 70.0, ("mixed-full", "PSPI"): 75.0,
+        ("mixed-full-filtered", "ATAC"): 95.0, ("mixed-full-filtered", "PSPI"): 78.0}
+
+
+def _handmade_dataset(lengths, returns_per_step) -> odata.Dataset:
+    obs, rew, ids, term, tout = [], [], [], [], []
+    for e, (n, r) in enumerate(zip(lengths, returns_per_step, strict=True)):
+        obs.append(np.zeros((n, 26), np.float32))
+        rew.append(np.full(n, r, np.float32))
+        ids.append(np.full(n, e, np.int32))
+        end = np.zeros(n, bool)
+        end[-1] = True
+        term.append(end if n < max(lengths) else np.zeros(n, bool))
+        tout.append(end if n == max(lengths) else np.zeros(n, bool))
+    obs = np.concatenate(obs)
+    return odata.create(obs, np.zeros((len(obs), 3), np.float32), np.concatenate(rew), obs,
+                        np.concatenate(term), np.concatenate(tout), np.concatenate(ids),
+                        metadata={"action_limit": 1.0})
+
+
+def _row(args, dataset, learner, reward, scores, safe):
+    return {"cell": ch8._cell_key(dataset, learner, reward, args), "dataset": dataset,
+            "learner": learner, "reward": reward, "normalized_score": list(scores),
+            "safe_pct": [safe] * len(scores), "success_pct": [0.0] * len(scores)}
+
+
+def _write_results(args, scores, bc, safe):
+    rows = []
+    for (d, lrn), means in scores.items():
+        for r, m in zip(("original", *WRONG), means, strict=True):
+            rows.append(_row(args, d, lrn, r, (m - 1.0, m + 1.0), safe.get((d, lrn), 100.0)))
+    for d, m in bc.items():
+        rows.append(_row(args, d, "BC", "none", (m, m), safe.get((d, "BC"), 100.0)))
+    for d, lrn in (("mixed-full-filtered", "ATAC"), ("mixed-full-filtered", "PSPI")):
+        rows.append(_row(args, d, lrn, "original", (50.0, 52.0), safe[(d, lrn)]))
+    # a row of other settings (another step count) is ignored
+    other = _row(args, "mixed-cut", "BC", "none", (-99.0, -99.0), 0.0)
+    key = json.loads(other["cell"])
+    key[4] += 1  # the step count
+    other["cell"] = json.dumps(key)
+    rows.append(other)
+    (args.out / "results.jsonl").write_text("\n".join(json.dumps(r) for r in rows) + "\n")
+
+
+@pytest.fixture(scope="module")
+def figures(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ch8")
+    args = ch8.parse_args(["--out", str(out), "--recipes", "mixed", "--scale", "1",
+                           "--seeds", "2", "--steps", "50", "--hidden", "16", "16"])
+    for name, (lengths, per_step) in {"mixed-cut": ([5, 10, 20, 20], [0.1, 0.2, 0.5, 0.4]),
+                                      "mixed-full": ([20] * 4, [0.1, 0.5, 0.3, 0.2])}.items():
+        recipe, cut, _ = ch8.split_name(name)
+        path = ch8.data_path(args, recipe, cut)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        odata.save(_handmade_dataset(lengths, per_step), path)
+    _write_results(args, SCORES, BC, SAFE)
+    summary = ch8.figures_stage(args)
+    return args, summary
+
+
+def test_figures_files_and_fields(figures):
+    args, _ = figures
+    for f in ("fig8_4.png", "fig8_5.png", "fig8_6.png", "table.md", "table.csv", "safety.md",
+              "safety.json", "summary.json"):
+        assert (args.out / f).stat().st_size > 0, f
+    on_disk = json.loads((args.out / "summary.json").read_text())
+    for k in ("a", "b", "safety", "well_above_bc", "bias_estimate", "rule_a", "rule_b",
+              "length_return_correlation", "cut_fraction"):
+        assert k in on_disk
+    assert on_disk["cut_fraction"] == {"mixed-cut": 0.5, "mixed-full": 0.0}
+    assert on_disk["length_return_correlation"]["mixed-full"] is None  # all lengths equal
+    assert on_disk["length_return_correlation"]["mixed-cut"] > 0.9
+
+
+def test_acceptance_checks_recomputed_from_results(figures):
+    args, summary = figures
+    rows = [json.loads(x) for x in (args.out / "results.jsonl").read_text().splitlines()]
+    cell = {(r["dataset"], r["learner"], r["reward"]): float(np.mean(r["normalized_score"]))
+            for r in rows if r["cell"] == ch8._cell_key(r["dataset"], r["learner"], r["reward"],
+                                                        args)}
+    # (a): mean over the wrong rewards >= BC + 10
+    for d in ("mixed-cut", "mixed-full"):
+        for lrn in ("ATAC", "PSPI"):
+            wrong = np.mean([cell[(d, lrn, r)] for r in WRONG])
+            assert summary["well_above_bc"][f"{d}/{lrn}"] == bool(
+                wrong >= cell[(d, "BC", "none")] + 10)
+    assert summary["a"] is True and summary["bc_mean"]["mixed-cut"] == 40.0
+    # (b): eq 8.3 = 100 / max(100 - min wrong, 0); PSPI reaches 100 on mixed-cut -> inf
+    assert summary["bias_estimate"]["mixed-cut/PSPI"] == "inf"
+    assert summary["bias_estimate"]["mixed-cut/ATAC"] == pytest.approx(100 / (100 - 60))
+    assert summary["bias_estimate"]["mixed-full/ATAC"] == pytest.approx(100 / (100 - 15))
+    assert summary["b"] is True
+    # safety: collision % of the filtered run < BC's (20 %) and < its own unfiltered one
+    safety = json.loads((args.out / "safety.json").read_text())
+    assert safety["checks"] == {"ATAC": True, "PSPI": False}  # PSPI 22 % > BC 20 %
+    assert summary["safety"] is False
+    assert safety["rows"]["ATAC (filtered)"]["collision_pct"] == pytest.approx(5.0)
+
+
+def test_acceptance_flips_with_the_data(figures, tmp_path):
+    """Lowering ATAC's wrong-reward scores on the biased dataset turns (a) and (b) False."""
+    args, _ = figures
+    args2 = ch8.parse_args(["--out", str(tmp_path), "--recipes", "mixed", "--scale", "1",
+                            "--seeds", "2", "--steps", "50", "--hidden", "16", "16"])
+    (tmp_path / "data").symlink_to(args.out / "data")
+    scores = dict(SCORES)
+    scores[("mixed-cut", "ATAC")] = (90, 40, 45, 5)
+    _write_results(args2, scores, BC, SAFE)
+    summary = ch8.figures_stage(args2)
+    assert summary["well_above_bc"]["mixed-cut/ATAC"] is False and summary["a"] is False
+    assert summary["bias_larger_on_length_biased"]["mixed/ATAC"] is False  # 100/95 < 100/85
+    assert summary["b"] is False
+
+
+@pytest.mark.slow
+def test_cpu_smoke_end_to_end(tmp_path):
+    """The CPU smoke, tiny: every stage, every learner, 2 seeds × 50 steps (minutes)."""
+    argv = ["--out", str(tmp_path), "--scale", "1", "--steps", "50", "--hidden", "16", "16",
+            "--seeds", "2", "--eval-episodes", "2", "--reference-episodes", "4", "--chunk",
+            "25", "--batch", "32"]
+    ch8.main(argv)
+    rows = [json.loads(x) for x in (tmp_path / "results.jsonl").read_text().splitlines()]
+    assert len(rows) == 2 * (4 * 4 + 1) + 5  # 2 datasets × (4 learners × 4 rewards + BC) + 5
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    cell = {(r["dataset"], r["learner"], r["reward"]): float(np.mean(r["normalized_score"]))
+            for r in rows}
+    wrong = np.mean([cell[("mixed-cut", "ATAC", r)] for r in WRONG])
+    assert summary["well_above_bc"]["mixed-cut/ATAC"] == bool(
+        wrong >= cell[("mixed-cut", "BC", "none")] + 10)
+    for f in ("fig8_4.png", "fig8_5.png", "fig8_6.png", "table.md", "safety.md"):
+        assert (tmp_path / f).exists()
+    ch8.main([*argv, "--stage", "train"])  # resumable: nothing left to train
+    assert len((tmp_path / "results.jsonl").read_text().splitlines()) == len(rows)
