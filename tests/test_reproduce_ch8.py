@@ -196,7 +196,8 @@ def test_cpu_smoke_end_to_end(tmp_path):
             "25", "--batch", "32"]
     ch8.main(argv)
     rows = [json.loads(x) for x in (tmp_path / "results.jsonl").read_text().splitlines()]
-    assert len(rows) == 2 * (4 * 4 + 1) + 5  # 2 datasets × (4 learners × 4 rewards + BC) + 5
+    assert len(rows) == 2 * (4 * 4 + 1) + 3  # 2 datasets × (4 learners × 4 rewards + BC)
+    assert {r["learner"] for r in rows if r["filtered"]} == {"ATAC", "PSPI", "BC"}
     summary = json.loads((tmp_path / "summary.json").read_text())
     cell = {(r["dataset"], r["learner"], r["reward"]): float(np.mean(r["normalized_score"]))
             for r in rows}
