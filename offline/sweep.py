@@ -14,8 +14,12 @@ batched; a test checks this in floating point).
 
 from __future__ import annotations
 
+import json
+import os
+import sys
 import zlib
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import jax
@@ -108,13 +112,36 @@ def run_actor_params(state: Any) -> Any:
     return actor_params(state.inner if isinstance(state, RewardBatchedState) else state)
 
 
+def done_cells(results: Path) -> set[str]:
+    """The ``"cell"`` keys already in a results JSONL file (empty when it does not exist):
+    the resumable scripts (``scripts/reproduce_ch7.py``, ``scripts/reproduce_ch8.py``) skip
+    them."""
+    if not results.exists():
+        return set()
+    return {json.loads(line)["cell"] for line in results.read_text().splitlines()
+            if line.strip()}
+
+
+def run_stages(args: Any, stages: Mapping[str, Callable[[Any], Any]], header: str) -> None:
+    """Run the stages of a reproduction script in order: all of them when ``args.stage`` is
+    ``"all"``, else the named one; ``header`` (device, preset, sizes) goes to stderr first and
+    ``args.out`` is created."""
+    os.makedirs(args.out, exist_ok=True)
+    print(header, file=sys.stderr, flush=True)
+    for name, stage in stages.items():
+        if args.stage in ("all", name):
+            stage(args)
+
+
 __all__ = [
     "REWARD_LEARNERS",
     "RewardBatchedState",
     "build_plain",
+    "done_cells",
     "reward_batched",
     "reward_key",
     "reward_rows",
     "reward_seed_keys",
     "run_actor_params",
+    "run_stages",
 ]

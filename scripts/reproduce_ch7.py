@@ -118,20 +118,15 @@ def _cell_key(env: str, scenario: str, learner: str, args) -> str:
                        args.scale, args.remove_terminals, args.eval_episodes])
 
 
-def _done_cells(path: Path) -> set[str]:
-    if not path.exists():
-        return set()
-    return {json.loads(line)["cell"] for line in path.read_text().splitlines() if line.strip()}
-
-
 def train_stage(args) -> None:
     """Train and evaluate every missing cell; append one JSON line per cell."""
     from offline import collect, evaluate, experiment, scenarios
     from offline import data as odata
     from offline.learner import actor_params
+    from offline.sweep import done_cells
 
     results = args.out / "results.jsonl"
-    done = _done_cells(results)
+    done = done_cells(results)
     budget = experiment.Budget(steps=args.steps, hidden=tuple(args.hidden))
     keys = experiment.seed_keys(range(args.seeds))
     for env in args.envs:
@@ -242,18 +237,13 @@ def table_stage(args) -> dict:
 
 def main(argv: Sequence[str] | None = None) -> None:
     """Run the selected stages."""
-    args = parse_args(argv)
-    os.makedirs(args.out, exist_ok=True)
-    print(f"device {jax.devices()[0].device_kind}; preset {args.preset}: envs {args.envs}, "
-          f"{args.seeds} seeds × {args.steps} steps, hidden {args.hidden}, scale {args.scale}",
-          file=sys.stderr, flush=True)
-    if args.stage in ("all", "collect"):
-        collect_stage(args)
-    if args.stage in ("all", "train"):
-        train_stage(args)
-    if args.stage in ("all", "table"):
-        table_stage(args)
+    from offline.sweep import run_stages
 
+    args = parse_args(argv)
+    run_stages(args, {"collect": collect_stage, "train": train_stage, "table": table_stage},
+               f"device {jax.devices()[0].device_kind}; preset {args.preset}: envs {args.envs}, "
+               f"{args.seeds} seeds × {args.steps} steps, hidden {args.hidden}, "
+               f"scale {args.scale}")
 
 if __name__ == "__main__":
     main()

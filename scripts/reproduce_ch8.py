@@ -67,8 +67,9 @@ import math
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -77,8 +78,6 @@ import mjxrmp  # noqa: F401  (sets the XLA:CPU flag before JAX initialises)
 # isort: split
 import jax
 import numpy as np
-
-from scripts.reproduce_ch7 import _done_cells
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = "three_link/env3"
@@ -273,7 +272,7 @@ def train_stage(args) -> None:
     from offline import experiment, sweep
 
     results = args.out / "results.jsonl"
-    done = _done_cells(results)
+    done = sweep.done_cells(results)
     budget = experiment.Budget(steps=args.steps, hidden=tuple(args.hidden), batch=args.batch)
     evaluation = None
     for name in args.datasets:
@@ -454,6 +453,21 @@ def safety_summary(args, cells: dict) -> dict:
     return out
 
 
+def _plot_lengths(args, lengths: dict, plt: Any) -> None:
+    """Fig 8.5: episode length vs true return, one panel per dataset."""
+    fig, axes = plt.subplots(1, len(lengths), figsize=(3.4 * len(lengths), 3), squeeze=False)
+    for ax, (d, st) in zip(axes[0], lengths.items(), strict=True):
+        ax.scatter(st["lengths"], st["returns"], s=6, alpha=0.6)
+        corr = st["length_return_correlation"]
+        ax.set_title(f"{d}: corr " + ("undefined" if math.isnan(corr) else f"{corr:.2f}"),
+                     fontsize=8)
+        ax.set_xlabel("episode length")
+        ax.set_ylabel("return (true reward)")
+    fig.tight_layout()
+    fig.savefig(args.out / "fig8_5.png", dpi=110)
+    plt.close(fig)
+
+
 def _plot(args, cells: dict, bias: dict, lengths: dict) -> None:
     import matplotlib
 
@@ -488,17 +502,8 @@ def _plot(args, cells: dict, bias: dict, lengths: dict) -> None:
     fig.savefig(args.out / "fig8_4.png", dpi=110)
     plt.close(fig)
 
-    fig, axes = plt.subplots(1, len(lengths), figsize=(3.4 * len(lengths), 3), squeeze=False)
-    for ax, (d, st) in zip(axes[0], lengths.items(), strict=True):
-        ax.scatter(st["lengths"], st["returns"], s=6, alpha=0.6)
-        corr = st["length_return_correlation"]
-        ax.set_title(f"{d}: corr " + ("undefined" if math.isnan(corr) else f"{corr:.2f}"),
-                     fontsize=8)
-        ax.set_xlabel("episode length")
-        ax.set_ylabel("return (true reward)")
-    fig.tight_layout()
-    fig.savefig(args.out / "fig8_5.png", dpi=110)
-    plt.close(fig)
+    if lengths:
+        _plot_lengths(args, lengths, plt)
 
     finite = [v for v in bias.values() if math.isfinite(v)]
     cap = 1.5 * max([*finite, 2.0])
@@ -522,15 +527,33 @@ def _plot(args, cells: dict, bias: dict, lengths: dict) -> None:
     plt.close(fig)
 
 
+def length_statistics(args, statistics: Callable[[Any], dict]) -> dict[str, dict]:
+    """Fig 8.5's per-dataset length/return statistics (``statistics`` is
+    :func:`offline.survival.length_bias_statistics`), computed from the datasets in
+    ``OUT/data`` and cached in ``OUT/length_bias.json``, so the figures can be redrawn where
+    only the results were copied (the datasets are large); cached entries fill in datasets
+    that are missing."""
+    cache = args.out / "length_bias.json"
+    stats = json.loads(cache.read_text()) if cache.exists() else {}
+    for d in base_datasets(args.recipes):
+        if data_path(args, *split_name(d)[:2]).exists():
+            stats[d] = statistics(load_dataset(args, d))
+    stats = {d: stats[d] for d in base_datasets(args.recipes) if d in stats}
+    if stats:
+        cache.write_text(json.dumps(stats))
+    else:
+        print(f"[figures] no datasets in {args.out / 'data'} and no {cache}: Fig 8.5 and the "
+              f"length statistics are left out (run --stage collect first)", flush=True)
+    return stats
+
+
 def figures_stage(args) -> dict:
     """Write the figures, tables, safety report and acceptance summary; return the summary."""
     from offline.survival import REWARD_VARIANTS, length_bias_statistics
 
     cells = load_cells(args)
     bias = bias_estimates(cells)
-    lengths = {d: length_bias_statistics(load_dataset(args, d))
-               for d in base_datasets(args.recipes)
-               if data_path(args, *split_name(d)[:2]).exists()}
+    lengths = length_statistics(args, length_bias_statistics)
     datasets = list(dict.fromkeys(d for d, _, _ in cells))
     header = ["dataset", "learner", *REWARD_VARIANTS, "BC", "bias (eq 8.3)"]
     md = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
@@ -581,19 +604,14 @@ def figures_stage(args) -> dict:
 
 def main(argv: Sequence[str] | None = None) -> None:
     """Run the selected stages."""
-    args = parse_args(argv)
-    os.makedirs(args.out, exist_ok=True)
-    print(f"device {jax.devices()[0].device_kind}; preset {args.preset}: datasets "
-          f"{args.datasets}, learners {args.learners}, rewards {args.rewards}, {args.seeds} "
-          f"seeds × {args.steps} steps, hidden {args.hidden}, scale {args.scale}",
-          file=sys.stderr, flush=True)
-    if args.stage in ("all", "collect"):
-        collect_stage(args)
-    if args.stage in ("all", "train"):
-        train_stage(args)
-    if args.stage in ("all", "figures"):
-        figures_stage(args)
+    from offline.sweep import run_stages
 
+    args = parse_args(argv)
+    run_stages(
+        args, {"collect": collect_stage, "train": train_stage, "figures": figures_stage},
+        f"device {jax.devices()[0].device_kind}; preset {args.preset}: datasets "
+        f"{args.datasets}, learners {args.learners}, rewards {args.rewards}, {args.seeds} "
+        f"seeds × {args.steps} steps, hidden {args.hidden}, scale {args.scale}")
 
 if __name__ == "__main__":
     main()
