@@ -188,6 +188,30 @@ def test_acceptance_flips_with_the_data(figures, tmp_path):
     assert summary["b"] is False
 
 
+def test_figures_redrawn_without_the_datasets_use_the_cached_length_statistics(figures,
+                                                                              tmp_path):
+    """Results copied without ``data/`` (datasets are large): the length statistics come from
+    ``length_bias.json``; with neither, Fig 8.5 is skipped and the rest is still written."""
+    args, summary = figures
+    out = tmp_path / "copy"
+    out.mkdir()
+    for f in ("results.jsonl", "length_bias.json"):
+        (out / f).write_text((args.out / f).read_text())
+    argv = ["--out", str(out), "--recipes", "mixed", "--scale", "1", "--seeds", "2", "--steps",
+            "50", "--hidden", "16", "16"]
+    again = ch8.figures_stage(ch8.parse_args(argv))
+    assert again["cut_fraction"] == summary["cut_fraction"] == {"mixed-cut": 0.5,
+                                                               "mixed-full": 0.0}
+    assert (out / "fig8_5.png").exists()
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    (bare / "results.jsonl").write_text((args.out / "results.jsonl").read_text())
+    argv[1] = str(bare)
+    third = ch8.figures_stage(ch8.parse_args(argv))
+    assert third["cut_fraction"] == {} and third["a"] == summary["a"]
+    assert not (bare / "fig8_5.png").exists() and (bare / "fig8_4.png").exists()
+
+
 @pytest.mark.slow
 def test_cpu_smoke_end_to_end(tmp_path):
     """The CPU smoke, tiny: every stage, every learner, 2 seeds × 50 steps (minutes)."""
