@@ -35,7 +35,9 @@ ATAC, PSPI, Oracle and UDS read the dataset's rewards, RP a frozen reward networ
 ``init``, and MAHALO (:mod:`offline.mahalo`) trains ``g`` online with Algorithm 3 line 6.
 
 Actions are divided by :func:`offline.learner.action_scale` (so they lie in ``[−1, 1]``) and
-``act`` multiplies the tanh mode back.
+``act`` multiplies the tanh mode back. With ``normalize_observations`` every state entering a
+network (actor, critics, the reward player's ``g``) is standardised with the dynamics data's
+statistics (:class:`offline.learner.ObservationNormalizer`); ``act`` takes raw observations.
 """
 
 from __future__ import annotations
@@ -52,7 +54,16 @@ import optax
 
 from offline import data as odata
 from offline import scenarios
-from offline.learner import Trainer, action_scale, normalized_dataset, policy_act, scan_steps
+from offline.learner import (
+    ObservationNormalizer,
+    Trainer,
+    action_scale,
+    check_bool,
+    normalized_dataset,
+    observation_normalizer,
+    policy_act,
+    scan_steps,
+)
 from offline.networks import FROBENIUS_BOUND, QEnsemble, polyak, project_frobenius
 from offline.tanh_gaussian import TanhGaussianPolicy
 
@@ -70,6 +81,7 @@ class ATACConfig:
     target-network term; ``1 − w`` weighs the residual term). ``pessimism="relative"`` is ATAC,
     ``"absolute"`` PSPI. ``remove_terminals`` treats terminals as timeouts; ``clip_v`` clips
     the backups to ``[V_min, V_max]`` computed from the reward range.
+    ``normalize_observations`` standardises the states (module docstring; default off).
     """
 
     hidden_sizes: Sequence[int] = (256, 256, 256)
@@ -91,6 +103,7 @@ class ATACConfig:
     pessimism: str = "relative"
     remove_terminals: bool = False
     clip_v: bool = False
+    normalize_observations: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden_sizes", tuple(self.hidden_sizes))
@@ -120,6 +133,7 @@ class ATACConfig:
         if self.pessimism not in PESSIMISM:
             raise ValueError(f"pessimism must be one of {list(PESSIMISM)}, got "
                              f"{self.pessimism!r}")
+        check_bool(self.normalize_observations, "normalize_observations")
 
 
 def _check_int(name: str, value: Any, minimum: int) -> None:
@@ -236,31 +250,39 @@ def _as_float32(x: Any) -> Any:
     return np.asarray(x, np.float32)
 
 
-def prepare_dataset(dataset: odata.Dataset, remove_terminals: bool) -> odata.Dataset:
+def prepare_dataset(dataset: odata.Dataset, remove_terminals: bool,
+                    normalizer: ObservationNormalizer | None = None) -> odata.Dataset:
     """Optionally turn terminals into timeouts, cast the float fields to float32, then
     :func:`offline.learner.normalized_dataset` (validate, divide the actions by the action
-    limit, put it on the device)."""
+    limit, standardise the states with ``normalizer`` when it is enabled, put it on the
+    device)."""
     if remove_terminals:
         dataset = scenarios.terminals_as_timeouts(odata.validate(dataset, name="dynamics"))
     f32 = {f: _as_float32(getattr(dataset, f))
            for f in ("observations", "actions", "rewards", "next_observations")}
-    return normalized_dataset(dataset.replace(**f32))[0]
+    on = normalizer is not None and normalizer.enabled
+    return normalized_dataset(dataset.replace(**f32), "dynamics", on, normalizer)[0]
 
 
 def make_core(dynamics: odata.Dataset, config: ATACConfig, reward: RewardModel, *,
-              reward_range: tuple[float, float] | None = None) -> Trainer:
+              reward_range: tuple[float, float] | None = None,
+              normalizer: ObservationNormalizer | None = None) -> Trainer:
     """The ATAC trainer (module docstring) on ``dynamics`` with the rewards of ``reward``.
 
     ``reward_range`` ``(r_min, r_max)`` gives ``V_min`` / ``V_max`` when ``config.clip_v``
     (default: the range of the dataset's rewards). Algorithm 3 (thesis §7.3.3) with the reward
-    player's update (line 6) when ``reward.fit_loss`` is given.
+    player's update (line 6) when ``reward.fit_loss`` is given. With
+    ``config.normalize_observations`` the states are standardised by ``normalizer`` (default:
+    fitted on ``dynamics``); the reward player's ``predict`` then receives standardised
+    minibatches and must have been built with the same normalizer.
     """
     if not isinstance(config, ATACConfig):
         raise TypeError(f"config must be an ATACConfig, got {type(config).__name__}")
     if reward.fit_loss is not None and reward.weight is None:
         raise ValueError("a trained reward player (fit_loss) needs a weight(beta) function")
     scale = action_scale(dynamics)
-    ds = prepare_dataset(dynamics, config.remove_terminals)
+    norm = observation_normalizer(dynamics, config.normalize_observations, normalizer)
+    ds = prepare_dataset(dynamics, config.remove_terminals, norm)
     obs_size, act_size = ds.observation_size, ds.action_size
     if reward_range is None and config.clip_v:
         r = np.asarray(ds.rewards)
@@ -389,7 +411,8 @@ def make_core(dynamics: odata.Dataset, config: ATACConfig, reward: RewardModel, 
     def run(state: ATACState, n: int) -> tuple[ATACState, dict]:
         return scan_steps(step, state, n)
 
-    return Trainer(init=init, run=run, act=policy_act(actor, scale), num_steps=config.num_steps)
+    return Trainer(init=init, run=run, act=policy_act(actor, scale, norm),
+                   num_steps=config.num_steps)
 
 
 def check_no_reward_data(reward_data: Any, learner: str) -> None:
@@ -401,7 +424,8 @@ def check_no_reward_data(reward_data: Any, learner: str) -> None:
 
 def make_train(dynamics: odata.Dataset, config: ATACConfig, *,
                reward_data: scenarios.RewardData | None = None,
-               reward_fn: Callable[[odata.Dataset], jax.Array] | None = None) -> Trainer:
+               reward_fn: Callable[[odata.Dataset], jax.Array] | None = None,
+               normalizer: ObservationNormalizer | None = None) -> Trainer:
     """ATAC (``pessimism="relative"``) or PSPI (``"absolute"``) on ``dynamics`` (thesis §7.3.3,
     ANCHOR_FACTS §5).
 
@@ -409,7 +433,9 @@ def make_train(dynamics: odata.Dataset, config: ATACConfig, *,
     (a fixed reward model applied to each minibatch). Dynamics data of a PLfO scenario (its
     metadata says ``rewards_visible: false``) is refused without a ``reward_fn``: its rewards
     are hidden; the Oracle baseline (:func:`offline.plfo_baselines.make_train_oracle`) reads
-    them on purpose.
+    them on purpose. ``normalizer``: the observation statistics when
+    ``config.normalize_observations`` (default: those of ``dynamics``; :func:`make_core`).
+    ``reward_fn`` receives minibatches with standardised states when the option is on.
     """
     check_no_reward_data(reward_data, "ATAC")
     if reward_fn is None:
@@ -417,11 +443,12 @@ def make_train(dynamics: odata.Dataset, config: ATACConfig, *,
             raise ValueError("dynamics has rewards_visible=False (PLfO dynamics data): ATAC "
                              "would read hidden rewards; pass reward_fn, or use "
                              "offline.plfo_baselines.make_train_oracle")
-        return make_core(dynamics, config, dataset_rewards())
+        return make_core(dynamics, config, dataset_rewards(), normalizer=normalizer)
     if not callable(reward_fn):
         raise ValueError(f"reward_fn must be callable (batch -> rewards), got {reward_fn!r}")
     return make_core(dynamics, config, RewardModel(init=lambda key: {},
-                                                   predict=lambda p, batch: reward_fn(batch)))
+                                                   predict=lambda p, batch: reward_fn(batch)),
+                     normalizer=normalizer)
 
 
 __all__ = [

@@ -18,6 +18,12 @@ one compiled program: ``init(key)`` trains the inverse model (its own ``lax.scan
 the data; ``run`` performs the BC steps. (Torabi et al. alternate the two stages with fresh
 environment interaction — BCO(α); offline there is none, so this is BCO(0).)
 
+With ``normalize_observations`` (of ``BCConfig``; BCO's inverse model has its own flag in
+``InverseDynamicsConfig``) the actor sees states standardised with the statistics of the
+**dynamics** data passed to ``make_train`` — also when it clones only the reward episodes or
+BCO's labelled reward data (:class:`offline.learner.ObservationNormalizer`); ``act`` takes raw
+observations.
+
 ``beta`` (the learner API's trade-off coefficient) is accepted and ignored: BC has none.
 Defaults (our choice; the thesis gives none for BC): Adam lr 3e-4, batch 256, 100k steps (the
 length of ATAC's BC warm start, ANCHOR_FACTS §5).
@@ -43,10 +49,12 @@ from offline.learner import (
     Trainer,
     action_scale,
     adam_step,
+    check_bool,
     check_network,
     check_positive_float,
     check_positive_int,
     normalized_dataset,
+    observation_normalizer,
     policy_act,
     scan_steps,
 )
@@ -60,7 +68,7 @@ BC_DATA = ("all", "reward_episodes")
 @dataclasses.dataclass(frozen=True)
 class BCConfig:
     """BC (module docstring). ``data``: ``"all"`` or ``"reward_episodes"`` (needs reward
-    data)."""
+    data); ``normalize_observations`` standardises the actor's states (default off)."""
 
     hidden_sizes: tuple[int, ...] = (256, 256, 256)
     activation: str = "relu"
@@ -68,6 +76,7 @@ class BCConfig:
     batch_size: int = 256
     num_steps: int = 100_000
     data: str = "all"
+    normalize_observations: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden_sizes", check_network(self.hidden_sizes,
@@ -77,6 +86,7 @@ class BCConfig:
         check_positive_int(self.num_steps, "num_steps")
         if self.data not in BC_DATA:
             raise ValueError(f"data must be one of {BC_DATA}, got {self.data!r}")
+        check_bool(self.normalize_observations, "normalize_observations")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -155,6 +165,7 @@ def reward_episodes(dynamics: odata.Dataset, reward_data: RewardData) -> odata.D
 
 def _make_bc(dynamics: odata.Dataset, config: BCConfig,
              reward_data: RewardData | None) -> Trainer:
+    norm = observation_normalizer(dynamics, config.normalize_observations)
     if config.data == "reward_episodes":
         if reward_data is None:
             raise ValueError("BCConfig.data='reward_episodes' needs reward_data")
@@ -163,7 +174,7 @@ def _make_bc(dynamics: odata.Dataset, config: BCConfig,
     elif reward_data is not None:
         raise ValueError("BC with data='all' uses no reward data; pass reward_data=None (or "
                          "BCConfig(data='reward_episodes') to clone only the reward episodes)")
-    data, scale = normalized_dataset(dynamics)
+    data, scale, _ = normalized_dataset(dynamics, "dynamics", config.normalize_observations, norm)
     policy = TanhGaussianPolicy(dynamics.action_size, config.hidden_sizes, config.activation)
     optimizer = optax.adam(config.learning_rate)
 
@@ -179,7 +190,7 @@ def _make_bc(dynamics: odata.Dataset, config: BCConfig,
     def run(state: BCState, n: int):
         return scan_steps(update, state, n)
 
-    return Trainer(init, run, policy_act(policy, scale), config.num_steps)
+    return Trainer(init, run, policy_act(policy, scale, norm), config.num_steps)
 
 
 def _make_bco(dynamics: odata.Dataset, config: BCOConfig,
@@ -195,10 +206,12 @@ def _make_bco(dynamics: odata.Dataset, config: BCOConfig,
     inverse = make_inverse_dynamics(dynamics, config.inverse)
     rd = jax.device_put(reward_data)
     action_size = dynamics.action_size
-    # The labelled reward data; its actions are replaced by the state's labels in each step.
-    template = odata.Dataset(rd.observations, jnp.zeros((rd.size, action_size), jnp.float32),
-                             rd.rewards, rd.next_observations, rd.terminals, rd.timeouts,
-                             rd.episode_ids, rd.metadata)
+    norm = observation_normalizer(dynamics, config.bc.normalize_observations)
+    # The labelled reward data (states standardised for the actor); its actions are replaced by
+    # the state's labels in each step.
+    template = norm.apply_states(odata.Dataset(
+        rd.observations, jnp.zeros((rd.size, action_size), jnp.float32), rd.rewards,
+        rd.next_observations, rd.terminals, rd.timeouts, rd.episode_ids, rd.metadata))
     bc = config.bc
     policy = TanhGaussianPolicy(action_size, bc.hidden_sizes, bc.activation)
     optimizer = optax.adam(bc.learning_rate)
@@ -208,7 +221,8 @@ def _make_bco(dynamics: odata.Dataset, config: BCOConfig,
         k_inv, k_init, k_run = jax.random.split(key, 3)
         model = inverse.model(inverse.train(k_inv)[0])
         labels = model.normalized(rd.observations, rd.next_observations)
-        params = {"actor": policy.init(k_init, rd.observations[:1]), "inverse": model.params}
+        params = {"actor": policy.init(k_init, template.observations[:1]),
+                  "inverse": model.params}
         return BCOState(params, optimizer.init(params["actor"]), k_run,
                         jnp.zeros((), jnp.int32), labels)
 
@@ -218,7 +232,7 @@ def _make_bco(dynamics: odata.Dataset, config: BCOConfig,
     def run(state: BCOState, n: int):
         return scan_steps(update, state, n)
 
-    return Trainer(init, run, policy_act(policy, action_scale(dynamics)), bc.num_steps)
+    return Trainer(init, run, policy_act(policy, action_scale(dynamics), norm), bc.num_steps)
 
 
 def make_train(dynamics: odata.Dataset, config: BCConfig | BCOConfig = BCConfig(), *,

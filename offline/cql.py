@@ -46,6 +46,7 @@ from offline import data as odata
 from offline.learner import (
     Trainer,
     adam_step,
+    check_bool,
     check_fraction,
     check_network,
     check_positive_float,
@@ -61,7 +62,9 @@ from offline.tanh_gaussian import TanhGaussianPolicy
 
 @dataclasses.dataclass(frozen=True)
 class CQLConfig:
-    """CQL(H) hyper-parameters (module docstring); ``target_entropy`` None means ``−dim(A)``."""
+    """CQL(H) hyper-parameters (module docstring); ``target_entropy`` None means ``−dim(A)``;
+    ``normalize_observations`` standardises every network's states with the dataset's
+    statistics (:class:`offline.learner.ObservationNormalizer`; default off)."""
 
     hidden_sizes: tuple[int, ...] = (256, 256, 256)
     activation: str = "relu"
@@ -78,6 +81,7 @@ class CQLConfig:
     target_entropy: float | None = None
     backup_entropy: bool = False
     num_critics: int = 2
+    normalize_observations: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden_sizes", check_network(self.hidden_sizes,
@@ -87,6 +91,7 @@ class CQLConfig:
         for name in ("batch_size", "num_steps", "num_samples", "num_critics"):
             check_positive_int(getattr(self, name), name)
         check_fraction(self.discount, "discount")
+        check_bool(self.normalize_observations, "normalize_observations")
         check_fraction(self.tau, "tau", closed=True)
         if self.target_entropy is not None and not (
                 isinstance(self.target_entropy, int | float) and math.isfinite(
@@ -153,7 +158,7 @@ def make_train(dynamics: odata.Dataset, config: CQLConfig = CQLConfig(), *,
     if reward_data is not None:
         raise ValueError("CQL takes no reward_data: it learns from the rewards of the dynamics "
                          "data (label them first, e.g. offline.data.relabel_rewards)")
-    data, scale = normalized_dataset(dynamics)
+    data, scale, norm = normalized_dataset(dynamics, "dynamics", config.normalize_observations)
     c = config
     action_size = dynamics.action_size
     target_entropy = -float(action_size) if c.target_entropy is None else c.target_entropy
@@ -220,7 +225,7 @@ def make_train(dynamics: odata.Dataset, config: CQLConfig = CQLConfig(), *,
     def run(state: CQLState, n: int):
         return scan_steps(update, state, n)
 
-    return Trainer(init, run, policy_act(policy, scale), c.num_steps)
+    return Trainer(init, run, policy_act(policy, scale, norm), c.num_steps)
 
 
 __all__ = ["CQLConfig", "CQLState", "conservative_penalty", "make_train", "penalty_actions",

@@ -27,6 +27,13 @@ rate of 5e-7 (ANCHOR_FACTS §5). :func:`atac_config` shortens it to ``steps`` wi
 at the same 10 % and the actor rate scaled by ``1e6 / steps`` so that the product (how far the
 slow actor can move) is unchanged; every other rate stays. BC, BCO, the inverse model and RP's
 reward regression get ``steps`` steps too.
+
+**Observation standardisation.** ``Budget.normalize_observations`` (default off) turns on every
+learner's ``normalize_observations``: all networks see states standardised with the statistics
+of ``D_A`` (the dynamics data given to :func:`build`;
+:class:`offline.learner.ObservationNormalizer`) — also AP's ATAC on the labelled ``D_R``, ATAC
+on the shared transitions, BC of the reward episodes and the inverse-dynamics model that labels
+``D_R``. ``act`` takes raw observations.
 """
 
 from __future__ import annotations
@@ -41,7 +48,7 @@ import numpy as np
 from offline import atac, bc, cql, iql, mahalo, plfo_baselines, scenarios
 from offline import data as odata
 from offline.inverse_dynamics import InverseDynamicsConfig, label_actions, make_inverse_dynamics
-from offline.learner import Trainer
+from offline.learner import ObservationNormalizer, Trainer, check_bool
 
 #: Learners of the chapter-7 table, in its column order (thesis Table 7.3, without SMODICE).
 TABLE_LEARNERS = ("MAHALO", "RP", "AP", "UDS", "ATAC", "BCO", "BC", "Oracle")
@@ -56,12 +63,14 @@ REFERENCE_ACTOR_LR = 5e-7
 
 @dataclasses.dataclass(frozen=True)
 class Budget:
-    """Size of one training run: ``steps`` gradient steps, MLP ``hidden`` sizes, ``batch``."""
+    """Size of one training run: ``steps`` gradient steps, MLP ``hidden`` sizes, ``batch``;
+    and whether every learner standardises its observations (module docstring)."""
 
     steps: int = REFERENCE_STEPS
     hidden: tuple[int, ...] = (256, 256, 256)
     batch: int = 256
     inverse_seed: int = 12345
+    normalize_observations: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden", tuple(self.hidden))
@@ -71,6 +80,7 @@ class Budget:
             raise ValueError(f"hidden must be positive integers, got {self.hidden!r}")
         if not (isinstance(self.batch, int) and self.batch >= 1):
             raise ValueError(f"batch must be a positive integer, got {self.batch!r}")
+        check_bool(self.normalize_observations, "normalize_observations")
 
 
 def atac_config(budget: Budget, **overrides: Any) -> atac.ATACConfig:
@@ -78,7 +88,8 @@ def atac_config(budget: Budget, **overrides: Any) -> atac.ATACConfig:
     actor rate × ``1e6 / steps``)."""
     kw = dict(hidden_sizes=budget.hidden, batch_size=budget.batch, num_steps=budget.steps,
               warmstart_steps=budget.steps // 10,
-              actor_lr=REFERENCE_ACTOR_LR * REFERENCE_STEPS / budget.steps)
+              actor_lr=REFERENCE_ACTOR_LR * REFERENCE_STEPS / budget.steps,
+              normalize_observations=budget.normalize_observations)
     kw.update(overrides)
     return atac.ATACConfig(**kw)
 
@@ -110,12 +121,25 @@ def labelled_transitions(dynamics: odata.Dataset, reward_data: scenarios.RewardD
 def inverse_labelled(dynamics: odata.Dataset, reward_data: scenarios.RewardData,
                      budget: Budget) -> odata.Dataset:
     """``D_R`` with actions predicted by an inverse-dynamics model fitted on ``D_A``
-    (``budget.steps`` steps, key ``budget.inverse_seed``) — AP's dataset."""
-    trainer = make_inverse_dynamics(dynamics, InverseDynamicsConfig(
-        hidden_sizes=budget.hidden, batch_size=budget.batch, num_steps=budget.steps))
+    (``budget.steps`` steps, key ``budget.inverse_seed``, states standardised with ``D_A``'s
+    statistics when ``budget.normalize_observations``) — AP's dataset."""
+    trainer = make_inverse_dynamics(dynamics, inverse_config(budget))
     state, _ = jax.jit(trainer.train)(jax.random.PRNGKey(budget.inverse_seed))
     labelled = label_actions(trainer.model(state), reward_data)
     return jax.tree.map(np.asarray, labelled)
+
+
+def inverse_config(budget: Budget) -> InverseDynamicsConfig:
+    """The inverse-dynamics model of AP and BCO at ``budget``."""
+    return InverseDynamicsConfig(hidden_sizes=budget.hidden, batch_size=budget.batch,
+                                 num_steps=budget.steps,
+                                 normalize_observations=budget.normalize_observations)
+
+
+def _statistics_of(dynamics: odata.Dataset, budget: Budget) -> ObservationNormalizer | None:
+    """``D_A``'s normalizer for a learner trained on data derived from it (AP, ATAC); None
+    when the budget does not standardise."""
+    return ObservationNormalizer.fit(dynamics) if budget.normalize_observations else None
 
 
 def build(learner: str, dynamics: odata.Dataset, reward_data: scenarios.RewardData | None,
@@ -128,7 +152,8 @@ def build(learner: str, dynamics: odata.Dataset, reward_data: scenarios.RewardDa
     if (reward_data is None) != (scenario is None):
         raise ValueError("pass reward_data exactly when a scenario is named")
     cfg = atac_config(budget)
-    net = dict(hidden_sizes=budget.hidden, batch_size=budget.batch)
+    net = dict(hidden_sizes=budget.hidden, batch_size=budget.batch,
+               normalize_observations=budget.normalize_observations)
     if learner == "MAHALO":
         return mahalo.make_train(dynamics, mahalo.MAHALOConfig(
             atac=atac_config(budget, beta=10.0),
@@ -142,16 +167,18 @@ def build(learner: str, dynamics: odata.Dataset, reward_data: scenarios.RewardDa
                 max_reward_label=scenario in ("ILfO", "IL")),
             reward_steps=budget.steps), reward_data=reward_data)
     if learner == "AP":
-        return atac.make_train(inverse_labelled(dynamics, reward_data, budget), cfg)
+        return atac.make_train(inverse_labelled(dynamics, reward_data, budget), cfg,
+                               normalizer=_statistics_of(dynamics, budget))
     if learner == "UDS":
         return plfo_baselines.make_train_uds(dynamics, plfo_baselines.UDSConfig(atac=cfg),
                                              reward_data=reward_data)
     if learner == "ATAC":
-        return atac.make_train(labelled_transitions(dynamics, reward_data), cfg)
+        return atac.make_train(labelled_transitions(dynamics, reward_data), cfg,
+                               normalizer=_statistics_of(dynamics, budget))
     bc_cfg = bc.BCConfig(num_steps=budget.steps, **net)
     if learner == "BCO":
-        return bc.make_train(dynamics, bc.BCOConfig(bc=bc_cfg, inverse=InverseDynamicsConfig(
-            num_steps=budget.steps, **net)), reward_data=reward_data)
+        return bc.make_train(dynamics, bc.BCOConfig(bc=bc_cfg, inverse=inverse_config(budget)),
+                             reward_data=reward_data)
     if learner == "BC":
         if scenario in ("IL", "RL-expert", "RL-sample"):
             return bc.make_train(dynamics, dataclasses.replace(bc_cfg, data="reward_episodes"),
@@ -207,6 +234,7 @@ __all__ = [
     "applicable",
     "atac_config",
     "build",
+    "inverse_config",
     "inverse_labelled",
     "labelled_transitions",
     "seed_keys",

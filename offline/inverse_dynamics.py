@@ -8,6 +8,10 @@ give no architecture): for control-affine dynamics such as ``s' = s + B a`` the 
 function of the input's second half alone. It is trained by least squares on the dynamics data's
 actions divided by the action limit (so targets lie in ``[−1, 1]``), in one ``lax.scan`` of
 Adam steps (:func:`make_inverse_dynamics`); training is jittable and vmappable over seeds.
+With ``normalize_observations`` both ``s`` and ``s'`` are standardised with the training (dynamics)
+data's statistics (:class:`offline.learner.ObservationNormalizer`) before the network — the
+trained :class:`InverseModel` carries that normalizer and takes raw states, so labelling reward
+data standardises its states with the dynamics statistics.
 
 **Labelling.** :func:`label_actions` gives reward data (:class:`offline.scenarios.RewardData`,
 no actions) the model's predicted actions and returns an :class:`offline.data.Dataset` — the
@@ -34,7 +38,9 @@ import optax
 from agents.networks import MLP
 from offline import data as odata
 from offline.learner import (
+    ObservationNormalizer,
     adam_step,
+    check_bool,
     check_network,
     check_positive_float,
     check_positive_int,
@@ -50,13 +56,15 @@ from offline.scenarios import RewardData
 @dataclasses.dataclass(frozen=True)
 class InverseDynamicsConfig:
     """Inverse-dynamics regression (our defaults; the thesis gives none): 3×256 ReLU, Adam
-    lr 3e-4, batch 256, 100k steps (as long as ATAC's BC warm start, ANCHOR_FACTS §5)."""
+    lr 3e-4, batch 256, 100k steps (as long as ATAC's BC warm start, ANCHOR_FACTS §5);
+    ``normalize_observations`` standardises the states (module docstring; default off)."""
 
     hidden_sizes: tuple[int, ...] = (256, 256, 256)
     activation: str = "relu"
     learning_rate: float = 3e-4
     batch_size: int = 256
     num_steps: int = 100_000
+    normalize_observations: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden_sizes", check_network(self.hidden_sizes,
@@ -64,6 +72,7 @@ class InverseDynamicsConfig:
         check_positive_float(self.learning_rate, "learning_rate")
         check_positive_int(self.batch_size, "batch_size")
         check_positive_int(self.num_steps, "num_steps")
+        check_bool(self.normalize_observations, "normalize_observations")
 
 
 class InverseDynamicsNet(nn.Module):
@@ -82,25 +91,28 @@ class InverseDynamicsNet(nn.Module):
 
 @dataclasses.dataclass(frozen=True)
 class InverseModel:
-    """A trained inverse-dynamics model: a pytree whose only leaves are ``params`` (so it can
-    be vmapped over seeds); ``model(obs, next_obs)`` predicts actions in environment units."""
+    """A trained inverse-dynamics model: a pytree whose leaves are ``params`` and the arrays of
+    its observation ``normalizer`` (none when it is the identity), so it can be vmapped over
+    seeds; ``model(obs, next_obs)`` predicts actions in environment units from raw states."""
 
     params: Any
     config: InverseDynamicsConfig
     action_size: int
     action_scale: float
+    normalizer: ObservationNormalizer
 
     def normalized(self, obs: jax.Array, next_obs: jax.Array) -> jax.Array:
-        """Predicted actions divided by the action limit, in ``[−1, 1]^A``."""
+        """Predicted actions divided by the action limit, in ``[−1, 1]^A`` (raw states in)."""
         net = InverseDynamicsNet(self.action_size, self.config.hidden_sizes,
                                  self.config.activation)
-        return net.apply(self.params, obs, next_obs)
+        norm = self.normalizer
+        return net.apply(self.params, norm.apply(obs), norm.apply(next_obs))
 
     def __call__(self, obs: jax.Array, next_obs: jax.Array) -> jax.Array:
         return self.action_scale * self.normalized(obs, next_obs)
 
 
-jax.tree_util.register_dataclass(InverseModel, data_fields=["params"],
+jax.tree_util.register_dataclass(InverseModel, data_fields=["params", "normalizer"],
                                  meta_fields=["config", "action_size", "action_scale"])
 
 
@@ -127,14 +139,14 @@ class InverseDynamicsTrainer(NamedTuple):
 def make_inverse_dynamics(dynamics: odata.Dataset,
                           config: InverseDynamicsConfig = InverseDynamicsConfig()
                           ) -> InverseDynamicsTrainer:
-    """Least-squares regression of the normalised dataset actions on ``(s, s')``:
-    loss ``mean ‖f(s, s') − a/action_limit‖²`` over minibatches drawn with
-    :func:`offline.data.sample`; metric ``loss`` per step. ``dynamics`` is closed over as
-    device arrays."""
+    """Least-squares regression of the normalised dataset actions on ``(s, s')`` (standardised
+    when ``config.normalize_observations``): loss ``mean ‖f(s, s') − a/action_limit‖²`` over
+    minibatches drawn with :func:`offline.data.sample`; metric ``loss`` per step. ``dynamics``
+    is closed over as device arrays."""
     if not isinstance(config, InverseDynamicsConfig):
         raise ValueError(f"config must be an InverseDynamicsConfig, got "
                          f"{type(config).__name__}")
-    data, scale = normalized_dataset(dynamics)
+    data, scale, norm = normalized_dataset(dynamics, "dynamics", config.normalize_observations)
     if dynamics.action_size == 0:
         raise ValueError("dynamics has no action dimensions (action_size 0)")
     net = InverseDynamicsNet(dynamics.action_size, config.hidden_sizes, config.activation)
@@ -162,7 +174,7 @@ def make_inverse_dynamics(dynamics: odata.Dataset,
         return scan_steps(update, state, n)
 
     def model(state: InverseDynamicsState) -> InverseModel:
-        return InverseModel(state.params["inverse"], config, dynamics.action_size, scale)
+        return InverseModel(state.params["inverse"], config, dynamics.action_size, scale, norm)
 
     return InverseDynamicsTrainer(init, run, model, config.num_steps)
 

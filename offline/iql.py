@@ -39,6 +39,7 @@ from offline import data as odata
 from offline.learner import (
     Trainer,
     adam_step,
+    check_bool,
     check_fraction,
     check_network,
     check_positive_float,
@@ -54,7 +55,9 @@ from offline.tanh_gaussian import TanhGaussianPolicy
 
 @dataclasses.dataclass(frozen=True)
 class IQLConfig:
-    """IQL hyper-parameters (module docstring for their sources)."""
+    """IQL hyper-parameters (module docstring for their sources); ``normalize_observations``
+    standardises every network's states with the dataset's statistics
+    (:class:`offline.learner.ObservationNormalizer`; default off)."""
 
     hidden_sizes: tuple[int, ...] = (256, 256, 256)
     activation: str = "relu"
@@ -69,6 +72,7 @@ class IQLConfig:
     max_weight: float = 100.0
     tau: float = 5e-3
     num_critics: int = 2
+    normalize_observations: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden_sizes", check_network(self.hidden_sizes,
@@ -78,6 +82,7 @@ class IQLConfig:
         for name in ("batch_size", "num_steps", "num_critics"):
             check_positive_int(getattr(self, name), name)
         check_fraction(self.discount, "discount")
+        check_bool(self.normalize_observations, "normalize_observations")
         check_fraction(self.expectile, "expectile")
         check_fraction(self.tau, "tau", closed=True)
 
@@ -115,7 +120,7 @@ def make_train(dynamics: odata.Dataset, config: IQLConfig = IQLConfig(), *,
     if reward_data is not None:
         raise ValueError("IQL takes no reward_data: it learns from the rewards of the dynamics "
                          "data (label them first, e.g. offline.data.relabel_rewards)")
-    data, scale = normalized_dataset(dynamics)
+    data, scale, norm = normalized_dataset(dynamics, "dynamics", config.normalize_observations)
     c = config
     policy = TanhGaussianPolicy(dynamics.action_size, c.hidden_sizes, c.activation)
     critic = QEnsemble(c.num_critics, c.hidden_sizes, c.activation)
@@ -176,7 +181,7 @@ def make_train(dynamics: odata.Dataset, config: IQLConfig = IQLConfig(), *,
     def run(state: IQLState, n: int):
         return scan_steps(update, state, n)
 
-    return Trainer(init, run, policy_act(policy, scale), c.num_steps)
+    return Trainer(init, run, policy_act(policy, scale, norm), c.num_steps)
 
 
 __all__ = ["IQLConfig", "IQLState", "awr_weights", "expectile_loss", "make_train"]

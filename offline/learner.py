@@ -11,7 +11,8 @@ functions over a learner-specific state (a NamedTuple whose ``params`` dict hold
   every metric has leading axis ``n``. The randomness of step ``t`` is derived from the state's
   key and its step counter, so ``run(run(s, a)[0], b)`` equals ``run(s, a + b)``.
 * ``act(params, obs) -> action`` — the deterministic action (tanh mode) in *environment* units,
-  i.e. multiplied by :func:`action_scale`; ``obs`` is ``(O,)`` or ``(..., O)``.
+  i.e. multiplied by :func:`action_scale`; ``obs`` is ``(O,)`` or ``(..., O)``, a *raw*
+  environment observation (a learner that standardises observations does so inside ``act``).
 * ``num_steps`` — the config's default total number of gradient steps;
   ``train(key, beta=None)`` runs them from ``init`` (``jax.jit(jax.vmap(trainer.train))(keys)``
   trains several seeds in one program).
@@ -21,9 +22,19 @@ the tanh-Gaussian's range.
 
 Shared plumbing of the learners: :func:`scan_steps` (``run``: ``n`` steps in one ``lax.scan``,
 step ``t``'s key ``fold_in(state.key, state.step)``, so ``run(run(s, a), b) == run(s, a + b)``),
-:func:`normalized_dataset` (validated, on the device, actions divided by the action limit),
-:func:`policy_act` (deterministic tanh-Gaussian action in environment units), :func:`adam_step`
-and the config validators (bad input → ``ValueError`` naming the argument).
+:func:`normalized_dataset` (validated, on the device, actions divided by the action limit,
+observations optionally standardised), :func:`policy_act` (deterministic tanh-Gaussian action in
+environment units), :func:`adam_step` and the config validators (bad input → ``ValueError``
+naming the argument).
+
+**Observation standardisation** (every learner's ``normalize_observations`` option, default
+off): :class:`ObservationNormalizer` ``(s − μ) / σ`` with the per-feature mean ``μ`` and standard
+deviation ``σ`` (floored at :data:`STD_FLOOR`) of the **dynamics data's** ``observations`` (its
+``next_observations`` are left out of the statistics: they repeat the observations shifted by
+one step). Every state that enters a network — actor, critics, value, reward network (on the
+reward data too), inverse-dynamics model — is standardised with the same statistics, and
+``act`` standardises the raw environment observation itself. Off, the normalizer is the
+identity and nothing is computed: results are bit-identical to a learner without the option.
 """
 
 from __future__ import annotations
@@ -39,6 +50,9 @@ from agents.networks import activation_fn
 from offline import data as odata
 from offline.data import Dataset
 from offline.tanh_gaussian import TanhGaussianPolicy
+
+#: Floor of the standard deviation used by :class:`ObservationNormalizer` (constant features).
+STD_FLOOR = 1e-3
 
 
 class Trainer(NamedTuple):
@@ -96,6 +110,13 @@ def check_fraction(value: Any, name: str, *, closed: bool = False) -> float:
     return float(value)
 
 
+def check_bool(value: Any, name: str) -> bool:
+    """``value`` if it is a ``bool``, else ``ValueError`` naming ``name``."""
+    if not isinstance(value, bool | np.bool_):
+        raise ValueError(f"{name} must be a bool, got {value!r}")
+    return bool(value)
+
+
 def check_network(hidden_sizes: Any, activation: Any, prefix: str = "") -> tuple[int, ...]:
     """Validated hidden sizes (a non-empty sequence of positive ints) and activation name."""
     name = f"{prefix}hidden_sizes"
@@ -128,23 +149,104 @@ def scan_steps(update: Callable[[Any, jax.Array], tuple[Any, dict]], state: Any,
     return jax.lax.scan(body, state, None, length=int(n))
 
 
-def normalized_dataset(dataset: odata.Dataset, name: str = "dynamics"
-                       ) -> tuple[odata.Dataset, float]:
-    """``(dataset on the device with actions / action_limit, action_limit)`` after
-    :func:`offline.data.validate`; an empty dataset is refused."""
+class ObservationNormalizer(NamedTuple):
+    """Per-feature standardisation ``(s − mean) / std`` of observations (module docstring).
+
+    ``mean`` / ``std`` are float32 NumPy arrays ``(O,)``, or both ``None`` for the identity
+    (the option off): then :meth:`apply` returns its input unchanged (the same object). A
+    pytree (a NamedTuple), so it can be closed over or carried inside jitted / vmapped code.
+    """
+
+    mean: np.ndarray | None = None
+    std: np.ndarray | None = None
+
+    @classmethod
+    def fit(cls, data: odata.TransitionTable) -> ObservationNormalizer:
+        """Mean and standard deviation (floored at :data:`STD_FLOOR`) of ``data.observations``
+        (a :class:`~offline.data.Dataset` or reward data), computed host-side in float64 and
+        stored as float32. The observations must be concrete (not traced), finite and at
+        least one row."""
+        obs = data.observations
+        if isinstance(obs, jax.core.Tracer):
+            raise ValueError("observation statistics need concrete observations, got traced "
+                             "ones (only rewards may be traced)")
+        obs = np.asarray(obs, np.float64)
+        if obs.ndim != 2 or obs.shape[0] == 0 or not np.isfinite(obs).all():
+            raise ValueError(f"observations must be a finite (N >= 1, O) array to standardise, "
+                             f"got shape {obs.shape}")
+        std = np.maximum(obs.std(axis=0), STD_FLOOR)
+        return cls(obs.mean(axis=0).astype(np.float32), std.astype(np.float32))
+
+    @property
+    def enabled(self) -> bool:
+        """Whether this normalizer standardises (False for the identity)."""
+        return self.mean is not None
+
+    def apply(self, obs: Any) -> Any:
+        """``(obs − mean) / std`` over the last axis (``obs`` itself for the identity); NumPy in,
+        NumPy out (host-side data), JAX in, JAX out (inside traced code)."""
+        if not self.enabled:
+            return obs
+        return (obs - self.mean) / self.std
+
+    def apply_states(self, data: odata.TransitionTable) -> odata.TransitionTable:
+        """``data`` (a dataset or reward data) with ``observations`` and ``next_observations``
+        standardised (``data`` itself for the identity)."""
+        if not self.enabled:
+            return data
+        return data.replace(observations=self.apply(data.observations),
+                            next_observations=self.apply(data.next_observations))
+
+
+def observation_normalizer(data: odata.TransitionTable, normalize_observations: bool,
+                           normalizer: ObservationNormalizer | None = None
+                           ) -> ObservationNormalizer:
+    """The normalizer a learner uses on ``data`` (its dynamics data): off, the identity
+    (``normalizer`` must then be None or the identity); on, ``normalizer`` if given (the
+    statistics of the dynamics data that ``data`` was derived from, e.g. AP's labelled reward
+    data), else :meth:`ObservationNormalizer.fit` on ``data``."""
+    if not check_bool(normalize_observations, "normalize_observations"):
+        if normalizer is not None and normalizer.enabled:
+            raise ValueError("normalizer is given but normalize_observations is False")
+        return ObservationNormalizer()
+    if normalizer is None:
+        return ObservationNormalizer.fit(data)
+    if not isinstance(normalizer, ObservationNormalizer) or not normalizer.enabled or (
+            np.shape(normalizer.mean) != (data.observation_size,)):
+        raise ValueError(f"normalizer must be an enabled ObservationNormalizer of "
+                         f"{data.observation_size} features, got {normalizer!r}")
+    return normalizer
+
+
+def normalized_dataset(dataset: odata.Dataset, name: str = "dynamics",
+                       normalize_observations: bool = False,
+                       normalizer: ObservationNormalizer | None = None
+                       ) -> tuple[odata.Dataset, float, ObservationNormalizer]:
+    """``(dataset on the device with actions / action_limit, action_limit, normalizer)`` after
+    :func:`offline.data.validate`; an empty dataset is refused. With
+    ``normalize_observations`` its ``observations`` and ``next_observations`` are standardised
+    by :func:`observation_normalizer` ``(dataset, True, normalizer)``; off, the normalizer is
+    the identity and the observations are untouched.
+    """
     odata.validate(dataset, name=name)
     if dataset.size == 0:
         raise ValueError(f"{name} is empty (0 transitions)")
+    normalizer = observation_normalizer(dataset, normalize_observations, normalizer)
     scale = action_scale(dataset)
     actions = np.asarray(dataset.actions) / np.asarray(scale, np.asarray(dataset.actions).dtype)
-    return jax.device_put(dataset.replace(actions=actions)), scale
+    data = normalizer.apply_states(dataset.replace(actions=actions))
+    return jax.device_put(data), scale, normalizer
 
 
-def policy_act(policy: TanhGaussianPolicy, scale: float) -> Callable[[Any, jax.Array], jax.Array]:
-    """The learner API's ``act(actor_params, obs)``: ``action_limit · tanh(μ(obs))``."""
+def policy_act(policy: TanhGaussianPolicy, scale: float,
+               normalizer: ObservationNormalizer | None = None
+               ) -> Callable[[Any, jax.Array], jax.Array]:
+    """The learner API's ``act(actor_params, obs)``: ``action_limit · tanh(μ(obs))``, the raw
+    environment observation ``obs`` first standardised by ``normalizer`` (None: as is)."""
+    norm = ObservationNormalizer() if normalizer is None else normalizer
 
     def act(params: Any, obs: jax.Array) -> jax.Array:
-        return scale * policy.apply(params, obs).mode()
+        return scale * policy.apply(params, norm.apply(obs)).mode()
 
     return act
 
@@ -158,15 +260,19 @@ def adam_step(optimizer: optax.GradientTransformation, params: Any, opt_state: A
 
 
 __all__ = [
+    "STD_FLOOR",
+    "ObservationNormalizer",
     "Trainer",
     "action_scale",
     "actor_params",
     "adam_step",
+    "check_bool",
     "check_fraction",
     "check_network",
     "check_positive_float",
     "check_positive_int",
     "normalized_dataset",
+    "observation_normalizer",
     "policy_act",
     "scan_steps",
 ]

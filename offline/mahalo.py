@@ -19,6 +19,10 @@ ILfO, §7.2.2) every reward-data label is ``1`` (``R_max``) and ``g`` is clipped
 otherwise ``g`` is clipped to ``reward_range`` (default: the environment's range recorded in
 the reward data's ``metadata["reward_range"]``), which also gives ``V_min`` / ``V_max`` when
 ``atac.clip_v``.
+
+With ``atac.normalize_observations`` the states of ``g``'s input — dynamics minibatches and the
+reward data alike — are standardised with the **dynamics** data's statistics
+(:class:`offline.learner.ObservationNormalizer`), the normalizer of the actor and critics.
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ import numpy as np
 
 from offline import atac, scenarios
 from offline import data as odata
-from offline.learner import Trainer
+from offline.learner import ObservationNormalizer, Trainer, observation_normalizer
 from offline.networks import StateNet
 
 #: Default weight of the reward-data loss relative to β (ANCHOR_FACTS §5: α = 1e5·β).
@@ -109,9 +113,12 @@ def reward_features(data: odata.Dataset | scenarios.RewardData) -> jax.Array:
 
 
 def prepare_reward_data(reward_data: scenarios.RewardData, *, remove_terminals: bool,
-                        max_reward_label: bool) -> scenarios.RewardData:
+                        max_reward_label: bool,
+                        normalizer: ObservationNormalizer | None = None
+                        ) -> scenarios.RewardData:
     """Validate, optionally turn terminals into timeouts and relabel every reward with
-    ``R_max = 1`` (``max_reward_label``), cast to float32 and put on the device."""
+    ``R_max = 1`` (``max_reward_label``), cast to float32, standardise the states with
+    ``normalizer`` (the dynamics data's; None: as they are) and put on the device."""
     if not isinstance(reward_data, scenarios.RewardData):
         raise ValueError(f"reward_data must be an offline.scenarios.RewardData, got "
                          f"{type(reward_data).__name__}")
@@ -123,9 +130,12 @@ def prepare_reward_data(reward_data: scenarios.RewardData, *, remove_terminals: 
     r = np.asarray(reward_data.rewards, np.float32)
     if max_reward_label:
         r = np.ones_like(r)
-    return jax.device_put(reward_data.replace(
-        observations=np.asarray(reward_data.observations, np.float32),
-        next_observations=np.asarray(reward_data.next_observations, np.float32), rewards=r))
+    rd = reward_data.replace(observations=np.asarray(reward_data.observations, np.float32),
+                             next_observations=np.asarray(reward_data.next_observations,
+                                                          np.float32), rewards=r)
+    if normalizer is not None:
+        rd = normalizer.apply_states(rd)
+    return jax.device_put(rd)
 
 
 def resolve_reward_range(reward_data: scenarios.RewardData, reward_range, max_reward_label: bool
@@ -155,14 +165,17 @@ class RewardNet(NamedTuple):
 
 
 def make_reward_net(reward_data: scenarios.RewardData | None, config: RewardNetConfig, *,
-                    observation_size: int, remove_terminals: bool, learner: str) -> RewardNet:
+                    observation_size: int, remove_terminals: bool, learner: str,
+                    normalizer: ObservationNormalizer | None = None) -> RewardNet:
     """The reward network ``g(s, s', terminal)`` (MLP, ``config.hidden_sizes``, one output) on
-    ``reward_data`` prepared by :func:`prepare_reward_data`; errors name ``learner``."""
+    ``reward_data`` prepared by :func:`prepare_reward_data`; errors name ``learner``.
+    ``normalizer`` (the dynamics data's) standardises the reward data's states; ``predict``
+    then expects minibatches standardised by it too (as the ATAC core's are)."""
     if reward_data is None:
         raise ValueError(f"{learner} needs reward_data (an offline.scenarios.RewardData: "
                          f"observations, rewards, next observations)")
     rd = prepare_reward_data(reward_data, remove_terminals=remove_terminals,
-                             max_reward_label=config.max_reward_label)
+                             max_reward_label=config.max_reward_label, normalizer=normalizer)
     if rd.observation_size != observation_size:
         raise ValueError(f"reward_data has observation size {rd.observation_size}, dynamics "
                          f"{observation_size}; they must match")
@@ -191,8 +204,10 @@ def make_train(dynamics: odata.Dataset, config: MAHALOConfig, *,
     """
     if not isinstance(config, MAHALOConfig):
         raise TypeError(f"config must be a MAHALOConfig, got {type(config).__name__}")
+    norm = observation_normalizer(dynamics, config.atac.normalize_observations)
     g = make_reward_net(reward_data, config.reward, observation_size=dynamics.observation_size,
-                        remove_terminals=config.atac.remove_terminals, learner="MAHALO")
+                        remove_terminals=config.atac.remove_terminals, learner="MAHALO",
+                        normalizer=norm)
 
     def weight(beta):
         if config.reward_weight is None:
@@ -201,7 +216,7 @@ def make_train(dynamics: odata.Dataset, config: MAHALOConfig, *,
 
     player = atac.RewardModel(init=g.init, predict=g.predict, fit_loss=g.mse, weight=weight,
                               lr=config.reward.lr)
-    return atac.make_core(dynamics, config.atac, player, reward_range=g.bounds)
+    return atac.make_core(dynamics, config.atac, player, reward_range=g.bounds, normalizer=norm)
 
 
 __all__ = [

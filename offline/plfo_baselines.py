@@ -17,7 +17,9 @@ core of :mod:`offline.atac`:
   scenario (:mod:`offline.scenarios`): **IL** — ``D_A = D_X ∪ D_E``; the expert transitions
   get ``R_max``, all of ``D_X`` gets ``r_min``; **RL-expert** — ``D_A = D_X ∪ D_E``; expert
   transitions keep their true rewards, ``D_X`` gets ``r_min``; **RL-sample** — ``D_A = D_X``;
-  the labelled fraction of episodes keeps its true rewards, the rest gets ``r_min``. ILfO and
+  the labelled fraction of episodes keeps its true rewards, the rest gets ``r_min``. Matching
+  is on the raw states; with ``atac.normalize_observations`` ATAC then standardises the
+  relabelled data (the dynamics data's own states, so the dynamics statistics). ILfO and
   RLfO share no transition (the expert data has no actions) and are refused (Table 7.3 has no
   UDS entry there).
 * **Oracle** (:func:`make_train_oracle`) — ATAC with the true rewards of all the dynamics data
@@ -37,7 +39,7 @@ import optax
 
 from offline import atac, scenarios
 from offline import data as odata
-from offline.learner import Trainer
+from offline.learner import Trainer, observation_normalizer
 from offline.mahalo import RewardNetConfig, make_reward_net
 
 
@@ -67,8 +69,10 @@ def make_train_rp(dynamics: odata.Dataset, config: RPConfig, *,
     network (its regression is part of the compiled program, so vmap over seeds works)."""
     if not isinstance(config, RPConfig):
         raise TypeError(f"config must be an RPConfig, got {type(config).__name__}")
+    norm = observation_normalizer(dynamics, config.atac.normalize_observations)
     g = make_reward_net(reward_data, config.reward, observation_size=dynamics.observation_size,
-                        remove_terminals=config.atac.remove_terminals, learner="RP")
+                        remove_terminals=config.atac.remove_terminals, learner="RP",
+                        normalizer=norm)
     opt = optax.adam(config.reward.lr)
 
     def fit(key: jax.Array):
@@ -86,7 +90,7 @@ def make_train_rp(dynamics: odata.Dataset, config: RPConfig, *,
         return params
 
     return atac.make_core(dynamics, config.atac, atac.RewardModel(init=fit, predict=g.predict),
-                          reward_range=g.bounds)
+                          reward_range=g.bounds, normalizer=norm)
 
 
 @dataclasses.dataclass(frozen=True)
