@@ -38,14 +38,14 @@ like the other strategies, cf. §5.1: "the resulting robot motion in Section 5.2
 an acceleration-based system, despite that the importance weights and potential functions are
 learned from velocity-based systems".)
 
-**Measured** (``scripts/lfd_franka.py --strategies two_step``, CPU preset, leave-one-out,
-``results/lfd_franka_two_step``): held-out error 24.2 ± 5.0 cm (door) and 16.1 ± 2.6 cm
-(drawer), success 100 % on both. With the shared default leaves (weight 10) the resolve is
-dominated by the straight-line pull: on the training samples (fold 0) the learned metrics'
-eigenvalues have median 3.4–3.9 (5–95 %: 1.7–7.9), below the default weight, with median
-``‖∇Φ‖`` 0.17–0.26 against ``‖ẋ‖`` 0.10–0.12 m/s; without them (``default_weight = 0``,
-the thesis' §5.2 policy) the drawer error falls to 7.3 cm (success 100 %) but door rollouts
-from perturbed starts reach the goal in only 5 % (error 23.7 cm).
+**Measured** (``scripts/lfd_franka.py``, CPU preset, leave-one-out, ``results/lfd_franka``):
+held-out error 24.2 ± 5.0 cm (door) and 16.1 ± 2.6 cm (drawer), success 100 % on both; with the
+cylinder, 6 of 60 door rollouts collide (clearance down to −1.7 cm). With the shared default leaves
+(weight 10) the resolve is dominated by the straight-line pull: on the training samples (fold 0)
+the learned metrics' eigenvalues have median 3.4–3.9 (5–95 %: 1.7–7.9), below the default weight,
+with median ``‖∇Φ‖`` 0.17–0.26 against ``‖ẋ‖`` 0.10–0.12 m/s; without them (``default_weight = 0``,
+the thesis' §5.2 policy) the drawer error falls to 7.3 cm (success 100 %) but door rollouts from
+perturbed starts reach the goal in only 5 % (error 23.7 cm).
 
 **Stability.** Without the execution leaves the policy is
 ``q̇ = (M + εI)⁻¹ f`` with ``M = Σ_k J_kᵀ(G_k + wI)J_k`` and

@@ -60,10 +60,9 @@ Writes ``metrics.json`` (per task and strategy: per-fold errors per control poin
 counts, training time and final losses; the settings) and ``table.csv`` to ``--out``, and the
 figures ``lfd_franka_<task>.png`` (demonstrated vs reproduced control-point triangles and
 centre paths, 3-D, as Figs 5.1/5.4) and ``lfd_franka_errors.png`` (box plots of the errors and
-success rates per strategy, as Fig 5.7) to ``--figures``. The default (CPU preset, 2 tasks × 4
-strategies × 6 folds) took 6.4–6.7 minutes on 2 CPU cores shared with other jobs (load ≈ 1–3; 11.3
-minutes at load ≈ 4.2) before ``two_step`` was added; ``--strategies two_step`` alone (both
-tasks, ``results/lfd_franka_two_step``) takes 56 s;
+success rates per strategy, as Fig 5.7) to ``--figures``. The default (CPU preset, 2 tasks × 5
+strategies × 6 folds) took 7.8 minutes on 2 CPU cores with all five strategies (load ≈ 1–2;
+``--strategies two_step`` alone takes about 1 minute);
 ``--preset thesis`` uses the full model sizes and iteration counts (hours on a CPU).
 """
 
