@@ -19,7 +19,8 @@ Stages (``--stage all`` runs them in order; each is resumable):
    episodes per seed in the environment (:mod:`offline.evaluate`, normalised score: uniform
    random 0, hand-designed expert 100; last iterate). One JSON line per cell in
    ``OUT/results.jsonl``; cells already there are skipped.
-3. **table** — ``OUT/table.md`` and ``OUT/table.csv``: mean ± standard error over seeds per
+3. **table** — ``OUT/table.md`` and ``OUT/table.csv`` (of the cells with the same
+   ``--normalize-observations`` setting): mean ± standard error over seeds per
    cell; in each row the entries within 90 % of the best non-Oracle score are bold (thesis
    Table 7.3's rule).
 """
@@ -70,6 +71,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--scale", type=int, default=None, help="episodes per dataset source")
     p.add_argument("--eval-episodes", type=int, default=None)
     p.add_argument("--chunk", type=int, default=None, help="gradient steps per compiled call")
+    p.add_argument("--normalize-observations", action="store_true",
+                   help="standardise observations with the dynamics data's statistics "
+                        "(offline.learner.ObservationNormalizer; cells get their own key)")
     p.add_argument("--remove-terminals", action="store_true",
                    help="treat terminals (collisions) as timeouts in both datasets")
     p.add_argument("--data-seed", type=int, default=0)
@@ -114,8 +118,9 @@ def collect_stage(args) -> None:
 
 
 def _cell_key(env: str, scenario: str, learner: str, args) -> str:
-    return json.dumps([env, scenario, learner, args.steps, list(args.hidden), args.seeds,
-                       args.scale, args.remove_terminals, args.eval_episodes])
+    key = [env, scenario, learner, args.steps, list(args.hidden), args.seeds, args.scale,
+           args.remove_terminals, args.eval_episodes]
+    return json.dumps(key + (["normalize_observations"] if args.normalize_observations else []))
 
 
 def train_stage(args) -> None:
@@ -127,7 +132,8 @@ def train_stage(args) -> None:
 
     results = args.out / "results.jsonl"
     done = done_cells(results)
-    budget = experiment.Budget(steps=args.steps, hidden=tuple(args.hidden))
+    budget = experiment.Budget(steps=args.steps, hidden=tuple(args.hidden),
+                               normalize_observations=args.normalize_observations)
     keys = experiment.seed_keys(range(args.seeds))
     for env in args.envs:
         env_obj = collect.make_env(env)
@@ -165,6 +171,7 @@ def train_stage(args) -> None:
                        "device": jax.devices()[0].device_kind,
                        "dynamics_transitions": int(dyn.size),
                        "reward_transitions": int(rd.size),
+                       "normalize_observations": args.normalize_observations,
                        "reference": evaluator.reference, **ev}
                 results.parent.mkdir(parents=True, exist_ok=True)
                 with open(results, "a") as f:
@@ -188,6 +195,11 @@ def table_stage(args) -> dict:
     if not path.exists():
         raise SystemExit(f"no results at {path}: run --stage train first")
     rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    rows = [r for r in rows  # one table per observation setting (rows before the flag: off)
+            if r.get("normalize_observations", False) == args.normalize_observations]
+    if not rows:
+        raise SystemExit(f"no results with normalize_observations={args.normalize_observations} "
+                         f"in {path}")
     cells: dict = {}
     for r in rows:
         s = np.asarray(r["normalized_score"], np.float64)
@@ -243,7 +255,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     run_stages(args, {"collect": collect_stage, "train": train_stage, "table": table_stage},
                f"device {jax.devices()[0].device_kind}; preset {args.preset}: envs {args.envs}, "
                f"{args.seeds} seeds × {args.steps} steps, hidden {args.hidden}, "
-               f"scale {args.scale}")
+               f"scale {args.scale}, normalize observations {args.normalize_observations}")
 
 if __name__ == "__main__":
     main()

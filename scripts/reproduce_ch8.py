@@ -110,6 +110,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--learners", nargs="+", default=list(LEARNERS), choices=LEARNERS)
     p.add_argument("--rewards", nargs="+", default=list(REWARD_VARIANTS),
                    choices=REWARD_VARIANTS)
+    p.add_argument("--normalize-observations", action="store_true",
+                   help="standardise observations with the dynamics data's statistics "
+                        "(offline.learner.ObservationNormalizer; cells get their own key)")
     p.add_argument("--terminals", default="keep", choices=TERMINAL_MODES)
     p.add_argument("--seeds", type=int, default=None, help="seeds per cell (vmapped)")
     p.add_argument("--steps", type=int, default=None, help="gradient steps per run")
@@ -224,8 +227,9 @@ def load_dataset(args, name: str):
 
 def _cell_key(dataset: str, learner: str, reward: str, args) -> str:
     margin = args.margin if split_name(dataset)[2] else None
-    return json.dumps([dataset, learner, reward, args.terminals, args.steps, list(args.hidden),
-                       args.seeds, args.batch, args.scale, args.eval_episodes, margin])
+    key = [dataset, learner, reward, args.terminals, args.steps, list(args.hidden), args.seeds,
+           args.batch, args.scale, args.eval_episodes, margin]
+    return json.dumps(key + (["normalize_observations"] if args.normalize_observations else []))
 
 
 class _Evaluation:
@@ -273,7 +277,8 @@ def train_stage(args) -> None:
 
     results = args.out / "results.jsonl"
     done = sweep.done_cells(results)
-    budget = experiment.Budget(steps=args.steps, hidden=tuple(args.hidden), batch=args.batch)
+    budget = experiment.Budget(steps=args.steps, hidden=tuple(args.hidden), batch=args.batch,
+                               normalize_observations=args.normalize_observations)
     evaluation = None
     for name in args.datasets:
         _, cut, filtered = split_name(name)
@@ -611,7 +616,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         args, {"collect": collect_stage, "train": train_stage, "figures": figures_stage},
         f"device {jax.devices()[0].device_kind}; preset {args.preset}: datasets "
         f"{args.datasets}, learners {args.learners}, rewards {args.rewards}, {args.seeds} "
-        f"seeds × {args.steps} steps, hidden {args.hidden}, scale {args.scale}")
+        f"seeds × {args.steps} steps, hidden {args.hidden}, scale {args.scale}, normalize "
+        f"observations {args.normalize_observations}")
 
 if __name__ == "__main__":
     main()

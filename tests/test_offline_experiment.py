@@ -117,6 +117,30 @@ def test_ch7_table_bolds_entries_within_90_percent_of_the_best_non_oracle(tmp_pa
                        "mahalo_beats_bc_bco_ilfo": {"e": False}}
 
 
+def test_ch7_and_ch8_keep_standardised_observation_runs_apart(tmp_path):
+    """``--normalize-observations`` gives cells their own key (old results stay valid), and
+    the ch7 table only reads rows of its own setting (refusing when there are none)."""
+    from scripts import reproduce_ch7, reproduce_ch8
+
+    base = ["--out", str(tmp_path)]
+    off, on = (reproduce_ch7.parse_args(base + extra)
+               for extra in ([], ["--normalize-observations"]))
+    assert reproduce_ch7._cell_key("e", "IL", "BC", off) != reproduce_ch7._cell_key(
+        "e", "IL", "BC", on)
+    assert json.loads(reproduce_ch7._cell_key("e", "IL", "BC", on))[:-1] == json.loads(
+        reproduce_ch7._cell_key("e", "IL", "BC", off))
+    off8, on8 = (reproduce_ch8.parse_args(base + extra)
+                 for extra in ([], ["--normalize-observations"]))
+    assert reproduce_ch8._cell_key("mixed-cut", "ATAC", "zero", off8) != reproduce_ch8._cell_key(
+        "mixed-cut", "ATAC", "zero", on8)
+    with open(tmp_path / "results.jsonl", "w") as f:
+        f.write(json.dumps({"env": "e", "scenario": "ILfO", "learner": "BC",
+                            "normalized_score": [1, 2], "safe_pct": [100, 100]}) + "\n")
+    assert reproduce_ch7.table_stage(off)["cells"] == 1  # rows without the field count as off
+    with pytest.raises(SystemExit, match="normalize_observations=True"):
+        reproduce_ch7.table_stage(on)
+
+
 def test_train_offline_refuses_bad_arguments(tmp_path, capsys):
     from scripts import train_offline
 
