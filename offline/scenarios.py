@@ -173,6 +173,29 @@ def _num_episodes(ds: odata.Dataset) -> int:
     return int(odata.episode_statistics(ds)[1]["num_episodes"])
 
 
+#: Environment facts a dataset records (:func:`offline.collect.environment_metadata`) that the
+#: scenario's dynamics data carries at its top level when its parts agree on them.
+ENVIRONMENT_KEYS = ("env", "env_kwargs", "horizon", "action_limit", "reward_range",
+                    "observation_layout")
+
+
+def _shared_environment(parts: list[odata.Dataset]) -> dict:
+    """The :data:`ENVIRONMENT_KEYS` entries of the parts' metadata (keys no part records are
+    left out); parts that disagree on one are refused — mixing environments or action limits
+    would silently mis-scale actions (learners read ``metadata["action_limit"]``)."""
+    out = {}
+    for key in ENVIRONMENT_KEYS:
+        values = [p.metadata.to_dict().get(key) for p in parts]
+        present = [v for v in values if v is not None]
+        if not present:
+            continue
+        if len(present) != len(values) or any(v != present[0] for v in present):
+            raise ValueError(f"the scenario's dynamics parts disagree on metadata[{key!r}]: "
+                             f"{values}; collect them from the same environment")
+        out[key] = present[0]
+    return out
+
+
 def make(name: str, mixed: odata.Dataset, expert: odata.Dataset | None = None, *,
          key: jax.Array | None = None, fraction: float = RL_SAMPLE_FRACTION,
          max_reward: float | None = None,
@@ -214,8 +237,8 @@ def make(name: str, mixed: odata.Dataset, expert: odata.Dataset | None = None, *
         rd = reward_data(expert, reward=label, metadata={
             **base, "plfo_role": "reward", "source": "expert",
             "overlap_with_dynamics": with_actions})
-    meta = {**base, "plfo_role": "dynamics", "rewards_visible": False,
-            "parts": [p.metadata.to_dict() for p in dyn_parts],
+    meta = {**base, **_shared_environment(dyn_parts), "plfo_role": "dynamics",
+            "rewards_visible": False, "parts": [p.metadata.to_dict() for p in dyn_parts],
             "part_names": ["mixed", "expert"][:len(dyn_parts)]}
     dynamics = odata.concatenate(*dyn_parts, metadata=meta)
     if not keep_terminals:

@@ -287,6 +287,8 @@ def test_plfo_scenarios(recipes, tmp_path):
         assert dyn.size == mixed.size + (expert.size if with_expert else 0)
         assert dyn.metadata["part_names"] == (["mixed", "expert"] if with_expert
                                               else ["mixed"])
+        for k_env in sc.ENVIRONMENT_KEYS:  # the environment facts stay at the top level
+            assert dyn.metadata[k_env] == mixed.metadata.to_dict()[k_env], k_env
         np.testing.assert_array_equal(np.asarray(dyn.actions[:mixed.size]),
                                       np.asarray(mixed.actions))
         ids = np.asarray(rd.episode_ids)
@@ -315,6 +317,9 @@ def test_plfo_scenarios(recipes, tmp_path):
             for i in np.unique(ids)[:2]:
                 np.testing.assert_array_equal(np.asarray(dyn.observations)[dyn_ids == i],
                                               np.asarray(rd.observations)[ids == i])
+    other = expert.replace(metadata=expert.metadata.updated(action_limit=2.0))
+    with pytest.raises(ValueError, match="disagree on metadata\\['action_limit'\\]"):
+        sc.make("IL", mixed, other)
     # Terminals treated as timeouts, reward data through files and minibatches.
     rand = recipes["random"][0]
     dyn, rd = sc.make("RL-sample", rand, key=key, fraction=1.0, keep_terminals=False)
