@@ -104,6 +104,7 @@ __all__ = [
     "SpeedNet",
     "TrainState",
     "Trainer",
+    "arrival_steps",
     "fast_cos",
     "fast_sin",
     "finite_difference_velocities",
@@ -648,6 +649,48 @@ def latent_step(field: FlowField, variables: dict, y: jax.Array, x: jax.Array,
     factor = jnp.clip(1.0 - dt * field.speed(variables, x, goal)[..., None]
                       * field.latent_gain(y), 0.0, 1.0)
     return factor * y
+
+
+def arrival_steps(config: LfdConfig, latent_norms: Any, dt: Any, shrink: float = 1e-3) -> int:
+    """A guaranteed number of :func:`latent_step` steps after which every start with
+    ``‖ψ(x₀)‖`` in ``latent_norms`` (any shape) lies within ``shrink·ε`` of the goal in the latent
+    space, for step ``dt`` (a scalar or an array broadcasting against ``latent_norms``).
+
+    Worst case ``s(x) = s_min`` (``speed_min``; the learned speed never falls below it) in
+    ``r⁺ = r·max(0, 1 − dt·s·γ(r))``: for the ``"norm"`` potential ``γ(r) = 1/√(r² + ε²)`` gives a
+    decrement of at least ``dt·s_min/√2`` while ``r ≥ ε`` and a contraction factor of at most
+    ``1 − dt·s_min/(√2 ε)`` inside ``ε`` (so the arrival time is ``√2‖ψ(x₀)‖/s_min`` plus the
+    geometric approach, the module docstring's bound); for ``"quadratic"`` (``γ = 1``) the factor
+    is at most ``1 − dt·s_min``. Only meaningful for ``integrator="latent"``; ``speed_min`` must be
+    positive (without the floor no arrival time is guaranteed)."""
+    if not config.speed_min > 0.0:
+        raise ValueError(f"arrival_steps needs LfdConfig.speed_min > 0, got {config.speed_min!r}:"
+                         f" without the speed floor no arrival time is guaranteed")
+    if not 0.0 < shrink < 1.0:
+        raise ValueError(f"shrink must lie in (0, 1), got {shrink!r}")
+    r0 = np.asarray(latent_norms, np.float64)
+    h = np.asarray(dt, np.float64)
+    if not (np.all(np.isfinite(r0)) and np.all(r0 >= 0.0)):
+        raise ValueError("latent_norms must be finite and non-negative")
+    if not (np.all(np.isfinite(h)) and np.all(h > 0.0)):
+        raise ValueError("dt must be finite and positive")
+    eps, s_min = config.potential_eps, config.speed_min
+    target = shrink * eps
+
+    def geometric(start: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """Steps for ``r ← r·(1 − c)`` to take ``start`` below ``target`` (one if ``c ≥ 1``)."""
+        c = np.minimum(c, 1.0)
+        ratio = np.maximum(start / target, 1.0)
+        with np.errstate(divide="ignore"):
+            k = np.where(c >= 1.0, 1.0, np.log(ratio) / -np.log1p(-np.minimum(c, 1.0 - 1e-16)))
+        return np.where(start <= target, 0.0, np.ceil(k))
+
+    if config.latent_potential == "quadratic":
+        steps = geometric(r0, h * s_min)
+    else:
+        to_ball = np.ceil(np.maximum(r0 - eps, 0.0) / (h * s_min / math.sqrt(2.0)))
+        steps = to_ball + geometric(np.minimum(r0, eps), h * s_min / (math.sqrt(2.0) * eps))
+    return int(np.max(steps, initial=0.0))
 
 
 def rollout(field: FlowField, variables: dict, x0: jax.Array, num_steps: int,

@@ -32,7 +32,8 @@ Writes to ``--out`` (one folder: ``tar czf lasa.tgz -C DIR .``):
   length, Fréchet, final-point error, swept error area), their means over demonstrations, the
   same for a straight-line baseline (uniform speed from the demonstration's start to the goal
   over its duration), the training summary, the **converged** end points of the same rollouts
-  run on to ``--check-steps`` (default ``10·T``) steps (``final_error_converged``; acceptance:
+  run on to ``--check-steps`` (default ``10·T``; ``auto``: the guaranteed arrival bound of every
+  start, :func:`agents.lfd.arrival_steps`) steps (``final_error_converged``; acceptance:
   below 1 % of the workspace, 0.01, since the normalised demonstrations span 1), and a
   convergence check: rollouts from ``--check-starts`` uniform random starts in the
   demonstrations' bounding box enlarged by 20 % for ``--check-steps`` steps — fraction within
@@ -64,7 +65,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import mjxrmp  # noqa: F401  (sets XLA flags before any JAX computation)
-from agents.lfd import LfdConfig, make_train, rollout, train_batched
+from agents.lfd import LfdConfig, arrival_steps, make_train, rollout, train_batched
 from mjxrmp.data.lasa import LASA_SHAPES, load_shape
 from mjxrmp.traj_metrics import all_metrics
 
@@ -141,6 +142,40 @@ def _rollout_program(field, num_steps: int, method: str):
 @functools.lru_cache(maxsize=8)
 def _velocity_program(field):
     return jax.jit(jax.vmap(field.velocity))
+
+
+def _check_steps(value: str) -> int | str:
+    """``--check-steps``: a positive integer or ``"auto"``."""
+    if value == "auto":
+        return value
+    try:
+        steps = int(value)
+    except ValueError:
+        steps = 0
+    if steps < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer or 'auto', got {value!r}")
+    return steps
+
+
+def check_horizon(check_steps: int | str | None, config: LfdConfig, field, variables,
+                  data: dict, starts: np.ndarray) -> int:
+    """Steps of the convergence rollouts: ``10·T`` (``None``), the given number, or for
+    ``"auto"`` :func:`agents.lfd.arrival_steps` over the random ``starts (S, n, 2)`` and the
+    demonstrations' starts with each shape's ``dt`` (at least ``T − 1``): every start then
+    reaches ``10⁻³·ε`` of the goal in the latent space by construction, so the check measures
+    whether the goal is reached, not whether it is reached within a fixed time."""
+    T = data["demos"].shape[2]
+    if check_steps is None:
+        return 10 * T
+    if check_steps != "auto":
+        return int(check_steps)
+    if config.integrator != "latent":
+        raise SystemExit(f"--check-steps auto needs the latent integrator (the bound is for "
+                         f"agents.lfd.latent_step), got integrator={config.integrator!r}")
+    points = np.concatenate([np.asarray(starts, np.float32),
+                             np.asarray(data["demos"][:, :, 0], np.float32)], axis=1)
+    r0 = np.asarray(_latent_norm_program(field)(variables, jnp.asarray(points)[:, :, None]))
+    return max(arrival_steps(config, r0[..., 0], np.asarray(data["dt"])[:, None]), T - 1)
 
 
 def straight_line(demos: np.ndarray) -> np.ndarray:
@@ -270,9 +305,11 @@ def main(argv=None) -> dict:
     p.add_argument("--log-every", type=int, default=100, help="iterations per compiled chunk")
     p.add_argument("--tiny", action="store_true", help="LfdConfig.tiny() (tests)")
     p.add_argument("--check-starts", type=int, default=64)
-    p.add_argument("--check-steps", type=int, default=None,
+    p.add_argument("--check-steps", type=_check_steps, default=None,
                    help="rollout steps of the convergence check and of the converged "
-                        "demonstration rollouts (default 10·T)")
+                        "demonstration rollouts: a number, or 'auto' = the guaranteed arrival "
+                        "bound of every start (agents.lfd.arrival_steps; latent integrator); "
+                        "default 10·T")
     p.add_argument("--goal-radius", type=float, default=0.05,
                    help="convergence radius of the check (normalised units)")
     p.add_argument("--no-figures", action="store_true")
@@ -291,7 +328,7 @@ def main(argv=None) -> dict:
         names = list(LASA_SHAPES) if args.all else canonical_shapes(args.shapes)
     except ValueError as err:
         p.error(str(err))
-    for flag in ("iterations", "log_every", "check_starts", "check_steps"):
+    for flag in ("iterations", "log_every", "check_starts"):
         val = getattr(args, flag)
         if val is not None and val < 1:
             p.error(f"--{flag.replace('_', '-')} must be >= 1, got {val}")
@@ -312,19 +349,21 @@ def main(argv=None) -> dict:
     field, variables = trainer.field, result.variables
     T = data["demos"].shape[2]
 
-    # Reproductions from each demonstration's start, run on to convergence (10·T steps): the
-    # trajectory metrics use the first T samples, the acceptance the converged end point.
-    steps = args.check_steps or 10 * T
+    # Random starts of the convergence check (in the enlarged box) and the check's length:
+    # 10·T steps, a given number, or 'auto', the guaranteed arrival bound of every start.
+    boxes = [box(d) for d in data["demos"]]
+    rng = np.random.default_rng(args.seed)
+    starts = np.stack([rng.uniform(lo, hi, (args.check_starts, 2)) for lo, hi in boxes])
+    steps = check_horizon(args.check_steps, config, field, variables, data, starts)
+    # Reproductions from each demonstration's start, run on to convergence: the trajectory
+    # metrics use the first T samples, the acceptance the converged end point.
     dts = jnp.asarray(data["dt"])
     long = _rollout_program(field, max(steps, T - 1), config.integrator)(
         variables, jnp.asarray(data["demos"][:, :, 0]), dts)
     rollouts = np.asarray(long[:, :, :T])
     demo_final, demo_monotone = convergence_stats(field, variables, long)
 
-    # Convergence check: random starts in the enlarged box, and speeds on a grid of it.
-    boxes = [box(d) for d in data["demos"]]
-    rng = np.random.default_rng(args.seed)
-    starts = np.stack([rng.uniform(lo, hi, (args.check_starts, 2)) for lo, hi in boxes])
+    # Convergence check from the random starts, and speeds on a grid of the box.
     check = _rollout_program(field, steps, config.integrator)(
         variables, jnp.asarray(starts, jnp.float32), dts)
     final_dist, monotone = convergence_stats(field, variables, check)
@@ -352,6 +391,9 @@ def main(argv=None) -> dict:
         "baseline": "straight line from the demonstration's start to the goal at uniform speed "
                     "over the demonstration's duration",
         "convergence_check": {"starts": args.check_starts, "steps": steps,
+                              "steps_rule": {None: "10·T", "auto": "guaranteed arrival bound "
+                                             "(agents.lfd.arrival_steps)"}.get(
+                                                 args.check_steps, "given"),
                               "box": f"demonstrations' bounding box enlarged by "
                                      f"{BOX_MARGIN:.0%}",
                               "goal_radius": args.goal_radius, "grid": f"{G}x{G}"},

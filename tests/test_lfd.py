@@ -22,6 +22,7 @@ import mjxrmp  # noqa: F401  (XLA flags first)
 from agents.lfd import (
     FlowField,
     LfdConfig,
+    arrival_steps,
     fast_cos,
     fast_sin,
     finite_difference_velocities,
@@ -173,6 +174,52 @@ def test_latent_rollouts_from_random_starts_converge_monotonically(trained, late
     np.testing.assert_allclose(xs[:, 0], starts)
     _assert_monotone(r)
     assert np.linalg.norm(xs[:, -1], axis=-1).max() < 1e-4
+
+
+def _worst_case_steps(r0: float, dt: float, eps: float, s_min: float, potential: str,
+                      target: float) -> int:
+    """Steps of latent_step's radial recursion at the slowest speed s_min, in float64."""
+    r, k = r0, 0
+    while r > target:
+        gain = 1.0 if potential == "quadratic" else 1.0 / np.sqrt(r * r + eps * eps)
+        r *= max(0.0, 1.0 - dt * s_min * gain)
+        k += 1
+    return k
+
+
+@pytest.mark.parametrize("potential", ["norm", "quadratic"])
+def test_arrival_steps_bound_the_slowest_latent_recursion(potential):
+    """The bound holds for the worst-case speed s_min and is tight within a factor of 2."""
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        cfg = LfdConfig(latent_potential=potential, potential_eps=float(rng.uniform(1e-3, 0.1)),
+                        speed_min=float(rng.uniform(0.05, 0.5)))
+        r0, dt = float(rng.uniform(0.0, 3.0)), float(rng.uniform(1e-3, 0.05))
+        bound = arrival_steps(cfg, [r0], dt)
+        sim = _worst_case_steps(r0, dt, cfg.potential_eps, cfg.speed_min, potential,
+                                1e-3 * cfg.potential_eps)
+        assert sim <= bound <= 2 * sim + 2, (r0, dt, sim, bound)
+    assert arrival_steps(LfdConfig(), np.zeros((3, 4)), 0.01) == 0
+    with pytest.raises(ValueError, match="speed_min > 0"):
+        arrival_steps(LfdConfig(speed_min=0.0), [1.0], 0.01)
+    with pytest.raises(ValueError, match="dt must be"):
+        arrival_steps(LfdConfig(), [1.0], 0.0)
+
+
+def test_learned_field_reaches_the_goal_within_the_arrival_bound(trained, trainer, latent_roll,
+                                                                 shape):
+    """``--check-steps auto``: after ``arrival_steps`` latent steps every start of the box is
+    within 1e-3·ε of the goal in the latent space (a guarantee, checked on a trained field)."""
+    starts = _box_starts(shape, 16, 0.2, seed=3)
+    r0 = np.linalg.norm(np.asarray(trainer.field.latent(trained.variables, jnp.asarray(starts))),
+                        axis=-1)
+    k = arrival_steps(trainer.config, r0, shape.dt)
+    assert k > 0
+    _, r = latent_roll(trained.variables, jnp.asarray(starts), k, shape.dt)
+    r = np.asarray(r)
+    _assert_monotone(r)
+    # float32 recomputation of ψ from x adds ~1e-7 (see _assert_monotone)
+    assert r[:, -1].max() <= 1e-3 * trainer.config.potential_eps + 1e-6, r[:, -1].max()
 
 
 @settings(max_examples=25, deadline=None,
