@@ -122,6 +122,33 @@ def done_cells(results: Path) -> set[str]:
             if line.strip()}
 
 
+def apply_preset(parser: Any, args: Any, preset: Mapping[str, Any],
+                 positive: Sequence[str]) -> Any:
+    """Fill the arguments left at ``None`` from ``preset`` and refuse (``parser.error``) any of
+    ``positive`` that is below 1; returns ``args``."""
+    for k, v in preset.items():
+        if getattr(args, k) is None:
+            setattr(args, k, v)
+    for name in positive:
+        if getattr(args, name) < 1:
+            parser.error(f"--{name.replace('_', '-')} must be a positive integer")
+    return args
+
+
+def progress_printer(name: str, total_steps: int, t0: float) -> Callable[[Any, dict, int], None]:
+    """An ``on_chunk`` callback for :func:`offline.experiment.train_chunked` printing
+    ``name: steps/total, seconds since t0`` and the first three loss metrics (seed means)."""
+    import time
+
+    def progress(state: Any, means: dict, steps: int) -> None:
+        loss = {k: float(np.mean(v)) for k, v in means.items() if "loss" in k}
+        shown = " ".join(f"{k} {v:.3g}" for k, v in list(loss.items())[:3])
+        print(f"  {name}: {steps}/{total_steps} steps, {time.perf_counter() - t0:.0f} s  {shown}",
+              flush=True)
+
+    return progress
+
+
 def run_stages(args: Any, stages: Mapping[str, Callable[[Any], Any]], header: str) -> None:
     """Run the stages of a reproduction script in order: all of them when ``args.stage`` is
     ``"all"``, else the named one; ``header`` (device, preset, sizes) goes to stderr first and
@@ -136,8 +163,10 @@ def run_stages(args: Any, stages: Mapping[str, Callable[[Any], Any]], header: st
 __all__ = [
     "REWARD_LEARNERS",
     "RewardBatchedState",
+    "apply_preset",
     "build_plain",
     "done_cells",
+    "progress_printer",
     "reward_batched",
     "reward_key",
     "reward_rows",

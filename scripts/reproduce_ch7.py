@@ -78,14 +78,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                    help="treat terminals (collisions) as timeouts in both datasets")
     p.add_argument("--data-seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=ROOT / "results" / "ch7")
+    from offline.sweep import apply_preset
+
     args = p.parse_args(argv)
-    for k, v in PRESETS[args.preset].items():
-        if getattr(args, k) is None:
-            setattr(args, k, v)
-    for name in ("seeds", "steps", "scale", "eval_episodes", "chunk"):
-        if getattr(args, name) < 1:
-            p.error(f"--{name.replace('_', '-')} must be a positive integer")
-    return args
+    return apply_preset(p, args, PRESETS[args.preset],
+                        ("seeds", "steps", "scale", "eval_episodes", "chunk"))
 
 
 def data_path(out: Path, env: str, recipe: str, scale: int, seed: int) -> Path:
@@ -128,7 +125,7 @@ def train_stage(args) -> None:
     from offline import collect, evaluate, experiment, scenarios
     from offline import data as odata
     from offline.learner import actor_params
-    from offline.sweep import done_cells
+    from offline.sweep import done_cells, progress_printer
 
     results = args.out / "results.jsonl"
     done = done_cells(results)
@@ -153,11 +150,7 @@ def train_stage(args) -> None:
                 t0 = time.perf_counter()
                 trainer = experiment.build(learner, dyn, rd, budget, scenario)
 
-                def progress(state, means, steps, _t0=t0, _name=f"{env} {scenario} {learner}"):
-                    loss = {k: float(np.mean(v)) for k, v in means.items() if "loss" in k}
-                    shown = " ".join(f"{k} {v:.3g}" for k, v in list(loss.items())[:3])
-                    print(f"  {_name}: {steps}/{args.steps} steps, "
-                          f"{time.perf_counter() - _t0:.0f} s  {shown}", flush=True)
+                progress = progress_printer(f"{env} {scenario} {learner}", args.steps, t0)
 
                 state, _ = experiment.train_chunked(trainer, keys, args.chunk, progress)
                 train_s = time.perf_counter() - t0

@@ -130,14 +130,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                    help="filter clearance in metres (default: the reward's obstacle delta)")
     p.add_argument("--data-seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=ROOT / "results" / "ch8")
+    from offline.sweep import apply_preset
+
     args = p.parse_args(argv)
-    for k, v in PRESETS[args.preset].items():
-        if getattr(args, k) is None:
-            setattr(args, k, v)
-    for name in ("seeds", "steps", "scale", "eval_episodes", "chunk", "batch",
-                 "reference_episodes"):
-        if getattr(args, name) < 1:
-            p.error(f"--{name.replace('_', '-')} must be a positive integer")
+    args = apply_preset(p, args, PRESETS[args.preset],
+                        ("seeds", "steps", "scale", "eval_episodes", "chunk", "batch",
+                         "reference_episodes"))
     if args.margin is None:
         from offline.collect import make_env
 
@@ -305,11 +303,7 @@ def train_stage(args) -> None:
                                               range(args.seeds))
             runs = keys[0].shape[0] if isinstance(keys, tuple) else keys.shape[0]
 
-            def progress(state, means, steps, _t0=t0, _name=f"{name} {learner} ({runs} runs)"):
-                loss = {k: float(np.mean(v)) for k, v in means.items() if "loss" in k}
-                shown = " ".join(f"{k} {v:.3g}" for k, v in list(loss.items())[:3])
-                print(f"  {_name}: {steps}/{args.steps} steps, "
-                      f"{time.perf_counter() - _t0:.0f} s  {shown}", flush=True)
+            progress = sweep.progress_printer(f"{name} {learner} ({runs} runs)", args.steps, t0)
 
             state, _ = experiment.train_chunked(trainer, keys, args.chunk, progress)
             jax.block_until_ready(state)
