@@ -149,6 +149,31 @@ def progress_printer(name: str, total_steps: int, t0: float) -> Callable[[Any, d
     return progress
 
 
+def collect_cached(path: Path, env_name: str, recipe: str, scale: int, seed: int, label: str,
+                   **collect_kwargs: Any) -> None:
+    """Collect ``recipe`` on ``env_name`` (:func:`offline.collect.collect_recipe`, the documented
+    no-PPO fallback's warning silenced) and save it to ``path``, unless ``path`` exists; prints
+    one ``[collect] label: …`` line either way."""
+    import time
+    import warnings
+
+    from offline import collect
+
+    if path.exists():
+        print(f"[collect] {path} exists", flush=True)
+        return
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        ds = collect.collect_recipe(env_name, recipe, scale, seed=seed, **collect_kwargs)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    odata.save(ds, path)
+    s = ds.metadata["summary"]
+    print(f"[collect] {label}: {s['num_episodes']} episodes, {ds.size} transitions, "
+          f"{s['num_terminals']} terminals, return {s['return_mean']:.1f}, "
+          f"{time.perf_counter() - t0:.1f} s → {path}", flush=True)
+
+
 def run_stages(args: Any, stages: Mapping[str, Callable[[Any], Any]], header: str) -> None:
     """Run the stages of a reproduction script in order: all of them when ``args.stage`` is
     ``"all"``, else the named one; ``header`` (device, preset, sizes) goes to stderr first and

@@ -91,27 +91,12 @@ def data_path(out: Path, env: str, recipe: str, scale: int, seed: int) -> Path:
 
 def collect_stage(args) -> None:
     """Collect (or find cached) the mixed and expert datasets of every environment."""
-    import warnings
-
-    from offline import collect
-    from offline import data as odata
+    from offline.sweep import collect_cached
 
     for env in args.envs:
         for recipe in ("mixed", "expert"):
-            path = data_path(args.out, env, recipe, args.scale, args.data_seed)
-            if path.exists():
-                print(f"[collect] {path} exists", flush=True)
-                continue
-            t0 = time.perf_counter()
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", UserWarning)  # the documented no-PPO fallback
-                ds = collect.collect_recipe(env, recipe, args.scale, seed=args.data_seed)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            odata.save(ds, path)
-            s = ds.metadata["summary"]
-            print(f"[collect] {env} {recipe}: {s['num_episodes']} episodes, {ds.size} transitions, "
-                  f"return {s['return_mean']:.1f}, {time.perf_counter() - t0:.1f} s → {path}",
-                  flush=True)
+            collect_cached(data_path(args.out, env, recipe, args.scale, args.data_seed), env,
+                           recipe, args.scale, args.data_seed, f"{env} {recipe}")
 
 
 def _cell_key(env: str, scenario: str, learner: str, args) -> str:

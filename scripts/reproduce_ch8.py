@@ -181,28 +181,12 @@ def data_path(args, recipe: str, cut: bool) -> Path:
 
 def collect_stage(args) -> None:
     """Collect (or find cached) the cut and full datasets of every recipe."""
-    import warnings
-
-    from offline import collect
-    from offline import data as odata
+    from offline.sweep import collect_cached
 
     for name in base_datasets(args.recipes):
         recipe, cut, _ = split_name(name)
-        path = data_path(args, recipe, cut)
-        if path.exists():
-            print(f"[collect] {path} exists", flush=True)
-            continue
-        t0 = time.perf_counter()
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)  # the documented no-PPO fallback
-            ds = collect.collect_recipe(ENV, recipe, args.scale, seed=args.data_seed,
-                                        cut_at_collision=cut)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        odata.save(ds, path)
-        s = ds.metadata["summary"]
-        print(f"[collect] {name}: {s['num_episodes']} episodes, {ds.size} transitions, "
-              f"{s['num_terminals']} terminals, return {s['return_mean']:.1f}, "
-              f"{time.perf_counter() - t0:.1f} s → {path}", flush=True)
+        collect_cached(data_path(args, recipe, cut), ENV, recipe, args.scale, args.data_seed,
+                       name, cut_at_collision=cut)
 
 
 def load_dataset(args, name: str):
