@@ -152,6 +152,18 @@ def test_metric_fit_by_eq_5_6_reduces_the_loss(hand_made, hand_fit):
     xs = jax.random.normal(jax.random.PRNGKey(1), (64, 3, 3)) * 0.3
     G = jax.vmap(lambda xx: T2.leaf_rmps(cfg, res, xx).M)(xs)
     assert float(jnp.min(jnp.linalg.eigvalsh(G))) > 0.0
+    # importance normalisation: c_k = weighted mean of tr G_k/3 over the samples, and the leaf's
+    # own velocity (eq 5.6's fit) is unchanged by it
+    raw = np.asarray(jax.vmap(lambda mp, xk: cfg.metric.apply({"params": mp}, xk),
+                              in_axes=(0, 1), out_axes=1)(res.params["metric"], samples.x),
+                     np.float64)                                            # (S, K, 3, 3)
+    c_ref = (np.asarray(w)[:, None] * np.trace(raw, axis1=-2, axis2=-1) / 3).sum(0) / np.sum(w)
+    np.testing.assert_allclose(res.params["scale"], c_ref, rtol=1e-5)
+    assert np.all(np.asarray(res.params["scale"]) > 1.5)   # fitted G ≈ diag(4, 1, 0.25)·…
+    rmp = jax.vmap(lambda xx: T2.leaf_rmps(cfg, res, xx))(samples.x[:16])
+    v = np.linalg.solve(np.asarray(rmp.M, np.float64), np.asarray(rmp.f, np.float64)[..., None])
+    v_raw = np.linalg.solve(raw[:16], -np.asarray(grad, np.float64)[:16, ..., None])
+    np.testing.assert_allclose(v[..., 0], v_raw[..., 0], rtol=1e-4, atol=1e-6)
     res0 = T2.make_train(cfg.replace(metric_iterations=0))(jax.random.PRNGKey(0), samples,
                                                            hand_fit)
     rmp = jax.vmap(lambda xx: T2.leaf_rmps(cfg, res0, xx))(xs)
