@@ -4,6 +4,9 @@
 
     python scripts/bench_offline.py                       # ATAC, CPU-sized: 10 k steps × 1 seed
     python scripts/bench_offline.py --learners atac --seeds 1 8 --full-steps 1000000 --full-seeds 8
+    # the same run in 100 k-step compiled chunks, progress written to the JSON after each
+    python scripts/bench_offline.py --learners atac --seeds 8 --chunk 2000 \
+        --full-steps 1000000 --full-seeds 8 --full-chunk 100000
 
 For each learner (``atac``, ``pspi``, ``mahalo``, ``bc``, ``iql``, ``cql``) at the thesis sizes
 (ANCHOR_FACTS §5: batch 256, 3×256 MLPs):
@@ -11,7 +14,10 @@ For each learner (``atac``, ``pspi``, ``mahalo``, ``bc``, ``iql``, ``cql``) at t
 * **steps/s** — a compiled ``run(state, chunk)`` vmapped over ``S`` seeds (``--seeds``), timed
   after a warm-up call; reported per seed-step (``gradient steps/s`` of one seed) and in total;
 * **full run** — ``jax.jit(jax.vmap(trainer.train))(keys)`` for ``--full-steps`` gradient steps
-  × ``--full-seeds`` seeds, wall time including compilation (compile time reported apart).
+  × ``--full-seeds`` seeds, wall time including compilation (compile time reported apart); with
+  ``--full-chunk`` in compiled chunks (how ``scripts/train_offline.py`` runs), the progress
+  (steps done, wall so far) written to the JSON after each chunk, so a run cut short by a time
+  limit still leaves its rate.
 
 The data are a ``mixed`` dataset of ``three_link/env3`` collected in the compiled graph
 (:func:`offline.collect.collect_recipe`; its size does not change the cost of a step) and, for
@@ -28,7 +34,7 @@ import json
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -37,7 +43,7 @@ import mjxrmp  # noqa: F401  (sets the XLA:CPU flag before JAX initialises)
 
 # isort: split
 import jax
-import jax.numpy as jnp
+import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 LEARNERS = ("atac", "pspi", "mahalo", "bc", "iql", "cql")
@@ -103,22 +109,42 @@ def measure(learner: str, seeds: Sequence[int] = (1,), chunk: int = 1000, scale:
 
 
 def measure_full(learner: str, num_steps: int, num_seeds: int, seed: int = 0, data=None,
-                 scale: int = 8) -> dict:
-    """Wall time of a whole ``jax.jit(jax.vmap(train))`` run of ``num_steps`` steps for
-    ``num_seeds`` seeds, compilation included (reported apart too)."""
+                 scale: int = 8, chunk: int = 0,
+                 on_chunk: Callable[[dict], None] | None = None) -> dict:
+    """Wall time of a whole run of ``num_steps`` steps for ``num_seeds`` seeds vmapped,
+    compilation included (reported apart too): one ``jax.jit(jax.vmap(train))`` program
+    (``chunk = 0``), or ``chunk``-step compiled calls of ``run`` after a compiled ``init``
+    (:func:`offline.experiment.train_chunked`'s way of running), with ``on_chunk(partial
+    result)`` after each — so a run cut short still leaves its progress and rate."""
+    from offline.experiment import train_chunked
+
     mixed, _, scenario = data if data is not None else _datasets(scale, seed)
     trainer = _trainer(learner, mixed, scenario, num_steps)
     keys = jax.random.split(jax.random.key(seed + 1), num_seeds)
     t_start = time.perf_counter()
-    train = jax.jit(jax.vmap(trainer.train)).lower(keys).compile()
-    compile_s = time.perf_counter() - t_start
-    _, metrics = jax.block_until_ready(train(keys))
+    if chunk:
+        state = jax.block_until_ready(jax.jit(jax.vmap(trainer.init))(keys))
+        compile_s = time.perf_counter() - t_start   # init only; each chunk size compiles once
+
+        def progress(state, means, done):
+            if on_chunk is not None:
+                on_chunk({"steps_done": done, "seeds": num_seeds,
+                          "wall_s": time.perf_counter() - t_start})
+
+        _, history = train_chunked(trainer, keys, chunk, progress, state=state)
+        metrics = history
+    else:
+        train = jax.jit(jax.vmap(trainer.train)).lower(keys).compile()
+        compile_s = time.perf_counter() - t_start
+        _, metrics = jax.block_until_ready(train(keys))
     wall = time.perf_counter() - t_start
-    finite = bool(all(jnp.all(jnp.isfinite(v)) for v in jax.tree.leaves(metrics)))
+    finite = bool(all(np.all(np.isfinite(v)) for v in jax.tree.leaves(metrics)))
     print(f"{learner}: {num_steps:,} steps × {num_seeds} seeds vmapped: {wall:.1f} s wall "
-          f"including {compile_s:.1f} s compile (metrics finite: {finite})", flush=True)
+          f"including {compile_s:.1f} s compile{' (init; chunks compile inside)' if chunk else ''}"
+          f" (metrics finite: {finite})", flush=True)
     return {"steps": num_steps, "seeds": num_seeds, "compile_s": compile_s, "wall_s": wall,
-            "steps_per_s_per_seed": num_steps / (wall - compile_s), "metrics_finite": finite}
+            "chunk": chunk, "steps_per_s_per_seed": num_steps / (wall - compile_s),
+            "metrics_finite": finite}
 
 
 def main(argv: Sequence[str] | None = None) -> dict:
@@ -132,6 +158,9 @@ def main(argv: Sequence[str] | None = None) -> dict:
     p.add_argument("--full-steps", type=int, default=0,
                    help="also time a whole run of this many steps (0: skip)")
     p.add_argument("--full-seeds", type=int, default=8)
+    p.add_argument("--full-chunk", type=int, default=0,
+                   help="run the whole run in compiled chunks of this many steps, writing "
+                        "progress to the JSON after each (0: one program)")
     p.add_argument("--scale", type=int, default=8, help="episodes per source of the dataset")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", type=Path, default=None)
@@ -139,8 +168,8 @@ def main(argv: Sequence[str] | None = None) -> dict:
     for name in ("seeds",):
         if any(n < 1 for n in getattr(args, name)):
             p.error(f"--{name} must be positive integers")
-    if args.full_steps < 0 or args.full_seeds < 1 or args.scale < 1:
-        p.error("--full-steps must be >= 0, --full-seeds and --scale >= 1")
+    if args.full_steps < 0 or args.full_seeds < 1 or args.scale < 1 or args.full_chunk < 0:
+        p.error("--full-steps and --full-chunk must be >= 0, --full-seeds and --scale >= 1")
     on_cpu = jax.default_backend() == "cpu"
     chunk = args.chunk or (10_000 if on_cpu else 20_000)
     device = jax.devices()[0].device_kind
@@ -158,8 +187,15 @@ def main(argv: Sequence[str] | None = None) -> dict:
         result["rows"].append(row)
         path.write_text(json.dumps(result, indent=2) + "\n")  # kept if the full run is cut
         if args.full_steps > 0:
+            def partial(progress, _row=row):
+                _row["full_progress"] = progress
+                print(f"  {progress['steps_done']:,}/{args.full_steps:,} steps, "
+                      f"{progress['wall_s']:.0f} s", flush=True)
+                path.write_text(json.dumps(result, indent=2) + "\n")
+
             row["full"] = measure_full(learner, args.full_steps, args.full_seeds,
-                                       seed=args.seed, data=data)
+                                       seed=args.seed, data=data, chunk=args.full_chunk,
+                                       on_chunk=partial)
             path.write_text(json.dumps(result, indent=2) + "\n")
     print(f"JSON: {path}", flush=True)
     return result

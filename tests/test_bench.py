@@ -40,3 +40,19 @@ def test_quick_bench_writes_complete_json(tmp_path, capsys):
     e = data["summary"]["env three_link/env3"]
     assert e["rmp2_best_steps_per_s"] > 0 and e["random_best_steps_per_s"] > 0
     assert [p["robot"] for p in data["precision"]] == ["three_link"]
+
+
+def test_offline_full_run_in_chunks_reports_progress(tmp_path):
+    """``bench_offline --full-chunk``: the chunked whole run writes its progress to the JSON
+    after each chunk and ends with the same fields as the one-program run."""
+    from scripts import bench_offline
+
+    path = tmp_path / "b.json"
+    out = bench_offline.main(["--learners", "bc", "--seeds", "1", "--chunk", "20",
+                              "--full-steps", "60", "--full-seeds", "2", "--full-chunk", "20",
+                              "--scale", "1", "--json", str(path)])
+    row = json.loads(path.read_text())["rows"][0]
+    assert row["full_progress"]["steps_done"] == 60 and row["full_progress"]["seeds"] == 2
+    full = out["rows"][0]["full"]
+    assert full["chunk"] == 20 and full["steps"] == 60 and full["metrics_finite"]
+    assert 0 < full["compile_s"] < full["wall_s"]
