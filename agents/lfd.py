@@ -679,11 +679,9 @@ def arrival_steps(config: LfdConfig, latent_norms: Any, dt: Any, shrink: float =
 
     def geometric(start: np.ndarray, c: np.ndarray) -> np.ndarray:
         """Steps for ``r ← r·(1 − c)`` to take ``start`` below ``target`` (one if ``c ≥ 1``)."""
-        c = np.minimum(c, 1.0)
         ratio = np.maximum(start / target, 1.0)
-        with np.errstate(divide="ignore"):
-            k = np.where(c >= 1.0, 1.0, np.log(ratio) / -np.log1p(-np.minimum(c, 1.0 - 1e-16)))
-        return np.where(start <= target, 0.0, np.ceil(k))
+        k = np.log(ratio) / -np.log1p(-np.minimum(c, 1.0 - 1e-16))   # c ≥ 1: one step
+        return np.where(start <= target, 0.0, np.where(c >= 1.0, 1.0, np.ceil(k)))
 
     if config.latent_potential == "quadratic":
         steps = geometric(r0, h * s_min)

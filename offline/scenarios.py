@@ -183,9 +183,10 @@ def _shared_environment(parts: list[odata.Dataset]) -> dict:
     """The :data:`ENVIRONMENT_KEYS` entries of the parts' metadata (keys no part records are
     left out); parts that disagree on one are refused — mixing environments or action limits
     would silently mis-scale actions (learners read ``metadata["action_limit"]``)."""
+    metas = [p.metadata.to_dict() for p in parts]
     out = {}
     for key in ENVIRONMENT_KEYS:
-        values = [p.metadata.to_dict().get(key) for p in parts]
+        values = [m.get(key) for m in metas]
         present = [v for v in values if v is not None]
         if not present:
             continue

@@ -17,6 +17,8 @@ from __future__ import annotations
 import json
 import os
 import sys
+import time
+import warnings
 import zlib
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -138,7 +140,6 @@ def apply_preset(parser: Any, args: Any, preset: Mapping[str, Any],
 def progress_printer(name: str, total_steps: int, t0: float) -> Callable[[Any, dict, int], None]:
     """An ``on_chunk`` callback for :func:`offline.experiment.train_chunked` printing
     ``name: steps/total, seconds since t0`` and the first three loss metrics (seed means)."""
-    import time
 
     def progress(state: Any, means: dict, steps: int) -> None:
         loss = {k: float(np.mean(v)) for k, v in means.items() if "loss" in k}
@@ -154,9 +155,6 @@ def collect_cached(path: Path, env_name: str, recipe: str, scale: int, seed: int
     """Collect ``recipe`` on ``env_name`` (:func:`offline.collect.collect_recipe`, the documented
     no-PPO fallback's warning silenced) and save it to ``path``, unless ``path`` exists; prints
     one ``[collect] label: …`` line either way."""
-    import time
-    import warnings
-
     from offline import collect
 
     if path.exists():

@@ -131,8 +131,7 @@ def measure_full(learner: str, num_steps: int, num_seeds: int, seed: int = 0, da
                 on_chunk({"steps_done": done, "seeds": num_seeds,
                           "wall_s": time.perf_counter() - t_start})
 
-        _, history = train_chunked(trainer, keys, chunk, progress, state=state)
-        metrics = history
+        _, metrics = train_chunked(trainer, keys, chunk, progress, state=state)
     else:
         train = jax.jit(jax.vmap(trainer.train)).lower(keys).compile()
         compile_s = time.perf_counter() - t_start
