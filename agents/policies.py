@@ -140,7 +140,11 @@ def residual_features(spec: ObservationSpec, obs: jax.Array):
     return net_in, q, qd, goal, obstacles
 
 
-def _hand_designed_mean(spec: ObservationSpec, cfg, obs: jax.Array) -> jax.Array:
+def hand_designed_mean(spec: ObservationSpec, cfg: rmp_policies.PolicyConfig,
+                       obs: jax.Array) -> jax.Array:
+    """Joint acceleration of the hand-designed RMP² policy ``cfg`` (eq 3.12 resolved over the
+    leaves of the preset) at the state decoded from ``obs`` (``(O,)`` or any batch)."""
+
     def one(o):
         q, qd, goal, obstacles = _decode_one(spec, o)
         return rmp_policies.acceleration(cfg, q, qd, goal, obstacles)
@@ -161,7 +165,7 @@ class HandDesignedPolicy(nn.Module):
         del norm  # nothing learned reads the observation
         dof = get(self.spec.robot).dof
         log_std = self.param("log_std", nn.initializers.constant(self.log_std_init), (dof,))
-        return _hand_designed_mean(self.spec, self.rmp_config, obs), log_std
+        return hand_designed_mean(self.spec, self.rmp_config, obs), log_std
 
 
 class NNResidualPolicy(nn.Module):
@@ -181,7 +185,7 @@ class NNResidualPolicy(nn.Module):
         residual = MLP(tuple(self.hidden_sizes), dof, self.activation, self.out_scale,
                        name="mean")(normalize(norm, obs))
         log_std = self.param("log_std", nn.initializers.constant(self.log_std_init), (dof,))
-        return residual + _hand_designed_mean(self.spec, self.rmp_config, obs), log_std
+        return residual + hand_designed_mean(self.spec, self.rmp_config, obs), log_std
 
 
 class RMPResidualPolicy(nn.Module):
@@ -297,6 +301,7 @@ __all__ = [
     "ObservationSpec",
     "RMPResidualPolicy",
     "decode_observation",
+    "hand_designed_mean",
     "make_env_and_policy",
     "make_policy",
     "residual_features",

@@ -65,7 +65,7 @@ from offline.learner import (
     scan_steps,
 )
 from offline.networks import FROBENIUS_BOUND, QEnsemble, polyak, project_frobenius
-from offline.tanh_gaussian import TanhGaussianPolicy
+from offline.residual_actor import check_actor, make_actor
 
 PESSIMISM = ("relative", "absolute")
 
@@ -82,6 +82,7 @@ class ATACConfig:
     ``"absolute"`` PSPI. ``remove_terminals`` treats terminals as timeouts; ``clip_v`` clips
     the backups to ``[V_min, V_max]`` computed from the reward range.
     ``normalize_observations`` standardises the states (module docstring; default off).
+    ``actor`` is the actor class (:data:`offline.residual_actor.ACTORS`; default ``"mlp"``).
     """
 
     hidden_sizes: Sequence[int] = (256, 256, 256)
@@ -104,6 +105,7 @@ class ATACConfig:
     remove_terminals: bool = False
     clip_v: bool = False
     normalize_observations: bool = False
+    actor: str = "mlp"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden_sizes", tuple(self.hidden_sizes))
@@ -134,6 +136,7 @@ class ATACConfig:
             raise ValueError(f"pessimism must be one of {list(PESSIMISM)}, got "
                              f"{self.pessimism!r}")
         check_bool(self.normalize_observations, "normalize_observations")
+        check_actor(self.actor, self.normalize_observations)
 
 
 def _check_int(name: str, value: Any, minimum: int) -> None:
@@ -292,7 +295,7 @@ def make_core(dynamics: odata.Dataset, config: ATACConfig, reward: RewardModel, 
                       else float(config.target_entropy))
     log_alpha0 = jnp.asarray(math.log(config.init_temperature), jnp.float32)
     hidden = config.hidden_sizes
-    actor = TanhGaussianPolicy(act_size, hidden_sizes=hidden)
+    actor = make_actor(config.actor, dynamics.metadata, act_size, hidden)
     critic = QEnsemble(config.num_critics, hidden_sizes=hidden)
     actor_adam = optax.scale_by_adam()
     critic_opt = optax.adam(config.critic_lr)

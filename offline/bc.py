@@ -35,6 +35,7 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
+import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -58,8 +59,8 @@ from offline.learner import (
     policy_act,
     scan_steps,
 )
+from offline.residual_actor import check_actor, make_actor
 from offline.scenarios import RewardData, validate_reward_data
-from offline.tanh_gaussian import TanhGaussianPolicy
 
 #: Values of :attr:`BCConfig.data`.
 BC_DATA = ("all", "reward_episodes")
@@ -68,7 +69,8 @@ BC_DATA = ("all", "reward_episodes")
 @dataclasses.dataclass(frozen=True)
 class BCConfig:
     """BC (module docstring). ``data``: ``"all"`` or ``"reward_episodes"`` (needs reward
-    data); ``normalize_observations`` standardises the actor's states (default off)."""
+    data); ``normalize_observations`` standardises the actor's states (default off);
+    ``actor`` is the actor class (:data:`offline.residual_actor.ACTORS`; default ``"mlp"``)."""
 
     hidden_sizes: tuple[int, ...] = (256, 256, 256)
     activation: str = "relu"
@@ -77,6 +79,7 @@ class BCConfig:
     num_steps: int = 100_000
     data: str = "all"
     normalize_observations: bool = False
+    actor: str = "mlp"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden_sizes", check_network(self.hidden_sizes,
@@ -87,6 +90,7 @@ class BCConfig:
         if self.data not in BC_DATA:
             raise ValueError(f"data must be one of {BC_DATA}, got {self.data!r}")
         check_bool(self.normalize_observations, "normalize_observations")
+        check_actor(self.actor, self.normalize_observations)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -123,7 +127,7 @@ class BCOState(NamedTuple):
     labels: jax.Array  # (N_R, A) normalised actions the inverse model gave the reward data
 
 
-def bc_loss(policy: TanhGaussianPolicy, actor_params: Any, observations: jax.Array,
+def bc_loss(policy: nn.Module, actor_params: Any, observations: jax.Array,
             actions: jax.Array) -> tuple[jax.Array, dict]:
     """``(−mean log π(a|s), metrics)`` for normalised actions ``a`` in ``[−1, 1]`` (module
     docstring); metrics ``bc_loss`` and ``action_mse`` (mode vs data, normalised units)."""
@@ -133,7 +137,7 @@ def bc_loss(policy: TanhGaussianPolicy, actor_params: Any, observations: jax.Arr
     return loss, {"bc_loss": loss, "action_mse": mse}
 
 
-def _bc_update(policy: TanhGaussianPolicy, optimizer: optax.GradientTransformation,
+def _bc_update(policy: nn.Module, optimizer: optax.GradientTransformation,
                batch_size: int, data_of: Callable[[Any], odata.Dataset]):
     """One BC step on a minibatch of ``data_of(state)`` (normalised actions)."""
 
@@ -175,7 +179,8 @@ def _make_bc(dynamics: odata.Dataset, config: BCConfig,
         raise ValueError("BC with data='all' uses no reward data; pass reward_data=None (or "
                          "BCConfig(data='reward_episodes') to clone only the reward episodes)")
     data, scale, _ = normalized_dataset(dynamics, "dynamics", config.normalize_observations, norm)
-    policy = TanhGaussianPolicy(dynamics.action_size, config.hidden_sizes, config.activation)
+    policy = make_actor(config.actor, dynamics.metadata, dynamics.action_size,
+                        config.hidden_sizes, config.activation)
     optimizer = optax.adam(config.learning_rate)
 
     def init(key: jax.Array, beta: Any = None) -> BCState:
@@ -213,7 +218,8 @@ def _make_bco(dynamics: odata.Dataset, config: BCOConfig,
         rd.observations, jnp.zeros((rd.size, action_size), jnp.float32), rd.rewards,
         rd.next_observations, rd.terminals, rd.timeouts, rd.episode_ids, rd.metadata))
     bc = config.bc
-    policy = TanhGaussianPolicy(action_size, bc.hidden_sizes, bc.activation)
+    policy = make_actor(bc.actor, dynamics.metadata, action_size, bc.hidden_sizes,
+                        bc.activation)
     optimizer = optax.adam(bc.learning_rate)
 
     def init(key: jax.Array, beta: Any = None) -> BCOState:

@@ -38,6 +38,7 @@ import dataclasses
 import math
 from typing import Any, NamedTuple
 
+import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import optax
@@ -56,15 +57,16 @@ from offline.learner import (
     scan_steps,
 )
 from offline.networks import QEnsemble, polyak
+from offline.residual_actor import check_actor, make_actor
 from offline.scenarios import RewardData
-from offline.tanh_gaussian import TanhGaussianPolicy
 
 
 @dataclasses.dataclass(frozen=True)
 class CQLConfig:
     """CQL(H) hyper-parameters (module docstring); ``target_entropy`` None means ``−dim(A)``;
     ``normalize_observations`` standardises every network's states with the dataset's
-    statistics (:class:`offline.learner.ObservationNormalizer`; default off)."""
+    statistics (:class:`offline.learner.ObservationNormalizer`; default off); ``actor`` is the
+    actor class (:data:`offline.residual_actor.ACTORS`; default ``"mlp"``)."""
 
     hidden_sizes: tuple[int, ...] = (256, 256, 256)
     activation: str = "relu"
@@ -82,6 +84,7 @@ class CQLConfig:
     backup_entropy: bool = False
     num_critics: int = 2
     normalize_observations: bool = False
+    actor: str = "mlp"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden_sizes", check_network(self.hidden_sizes,
@@ -92,6 +95,7 @@ class CQLConfig:
             check_positive_int(getattr(self, name), name)
         check_fraction(self.discount, "discount")
         check_bool(self.normalize_observations, "normalize_observations")
+        check_actor(self.actor, self.normalize_observations)
         check_fraction(self.tau, "tau", closed=True)
         if self.target_entropy is not None and not (
                 isinstance(self.target_entropy, int | float) and math.isfinite(
@@ -111,7 +115,7 @@ class CQLState(NamedTuple):
     beta: jax.Array  # conservative weight α (min_q_weight)
 
 
-def penalty_actions(policy: TanhGaussianPolicy, actor_params: Any, obs: jax.Array,
+def penalty_actions(policy: nn.Module, actor_params: Any, obs: jax.Array,
                     next_obs: jax.Array, key: jax.Array, num_samples: int
                     ) -> tuple[jax.Array, jax.Array]:
     """The importance samples of the CQL(H) log-sum-exp: ``(actions (3K, B, A), log_density
@@ -162,7 +166,7 @@ def make_train(dynamics: odata.Dataset, config: CQLConfig = CQLConfig(), *,
     c = config
     action_size = dynamics.action_size
     target_entropy = -float(action_size) if c.target_entropy is None else c.target_entropy
-    policy = TanhGaussianPolicy(action_size, c.hidden_sizes, c.activation)
+    policy = make_actor(c.actor, dynamics.metadata, action_size, c.hidden_sizes, c.activation)
     critic = QEnsemble(c.num_critics, c.hidden_sizes, c.activation)
     opts = {"actor": optax.adam(c.actor_lr), "critic": optax.adam(c.critic_lr),
             "log_alpha": optax.adam(c.alpha_lr)}

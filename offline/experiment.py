@@ -34,6 +34,11 @@ of ``D_A`` (the dynamics data given to :func:`build`;
 :class:`offline.learner.ObservationNormalizer`) — also AP's ATAC on the labelled ``D_R``, ATAC
 on the shared transitions, BC of the reward episodes and the inverse-dynamics model that labels
 ``D_R``. ``act`` takes raw observations.
+
+**Actor.** ``Budget.actor`` (default ``"mlp"``) is every learner's actor class
+(:mod:`offline.residual_actor`): ``"nn_residual"`` adds the actor's MLP to the pre-tanh image of
+the chapter-6 NN-RESIDUAL base RMP² policy. The critics, value and reward networks and the
+inverse-dynamics model stay MLPs.
 """
 
 from __future__ import annotations
@@ -49,6 +54,7 @@ from offline import atac, bc, cql, iql, mahalo, plfo_baselines, scenarios
 from offline import data as odata
 from offline.inverse_dynamics import InverseDynamicsConfig, label_actions, make_inverse_dynamics
 from offline.learner import ObservationNormalizer, Trainer, check_bool
+from offline.residual_actor import check_actor
 
 #: Learners of the chapter-7 table, in its column order (thesis Table 7.3, without SMODICE).
 TABLE_LEARNERS = ("MAHALO", "RP", "AP", "UDS", "ATAC", "BCO", "BC", "Oracle")
@@ -64,13 +70,15 @@ REFERENCE_ACTOR_LR = 5e-7
 @dataclasses.dataclass(frozen=True)
 class Budget:
     """Size of one training run: ``steps`` gradient steps, MLP ``hidden`` sizes, ``batch``;
-    and whether every learner standardises its observations (module docstring)."""
+    whether every learner standardises its observations, and every learner's actor class
+    (module docstring)."""
 
     steps: int = REFERENCE_STEPS
     hidden: tuple[int, ...] = (256, 256, 256)
     batch: int = 256
     inverse_seed: int = 12345
     normalize_observations: bool = False
+    actor: str = "mlp"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden", tuple(self.hidden))
@@ -81,6 +89,7 @@ class Budget:
         if not (isinstance(self.batch, int) and self.batch >= 1):
             raise ValueError(f"batch must be a positive integer, got {self.batch!r}")
         check_bool(self.normalize_observations, "normalize_observations")
+        check_actor(self.actor, self.normalize_observations)
 
 
 def atac_config(budget: Budget, **overrides: Any) -> atac.ATACConfig:
@@ -89,7 +98,7 @@ def atac_config(budget: Budget, **overrides: Any) -> atac.ATACConfig:
     kw = dict(hidden_sizes=budget.hidden, batch_size=budget.batch, num_steps=budget.steps,
               warmstart_steps=budget.steps // 10,
               actor_lr=REFERENCE_ACTOR_LR * REFERENCE_STEPS / budget.steps,
-              normalize_observations=budget.normalize_observations)
+              normalize_observations=budget.normalize_observations, actor=budget.actor)
     kw.update(overrides)
     return atac.ATACConfig(**kw)
 
@@ -153,7 +162,7 @@ def build(learner: str, dynamics: odata.Dataset, reward_data: scenarios.RewardDa
         raise ValueError("pass reward_data exactly when a scenario is named")
     cfg = atac_config(budget)
     net = dict(hidden_sizes=budget.hidden, batch_size=budget.batch,
-               normalize_observations=budget.normalize_observations)
+               normalize_observations=budget.normalize_observations, actor=budget.actor)
     if learner == "MAHALO":
         return mahalo.make_train(dynamics, mahalo.MAHALOConfig(
             atac=atac_config(budget, beta=10.0),

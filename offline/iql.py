@@ -49,15 +49,16 @@ from offline.learner import (
     scan_steps,
 )
 from offline.networks import QEnsemble, StateNet, polyak
+from offline.residual_actor import check_actor, make_actor
 from offline.scenarios import RewardData
-from offline.tanh_gaussian import TanhGaussianPolicy
 
 
 @dataclasses.dataclass(frozen=True)
 class IQLConfig:
     """IQL hyper-parameters (module docstring for their sources); ``normalize_observations``
     standardises every network's states with the dataset's statistics
-    (:class:`offline.learner.ObservationNormalizer`; default off)."""
+    (:class:`offline.learner.ObservationNormalizer`; default off); ``actor`` is the actor class
+    (:data:`offline.residual_actor.ACTORS`; default ``"mlp"``)."""
 
     hidden_sizes: tuple[int, ...] = (256, 256, 256)
     activation: str = "relu"
@@ -73,6 +74,7 @@ class IQLConfig:
     tau: float = 5e-3
     num_critics: int = 2
     normalize_observations: bool = False
+    actor: str = "mlp"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden_sizes", check_network(self.hidden_sizes,
@@ -83,6 +85,7 @@ class IQLConfig:
             check_positive_int(getattr(self, name), name)
         check_fraction(self.discount, "discount")
         check_bool(self.normalize_observations, "normalize_observations")
+        check_actor(self.actor, self.normalize_observations)
         check_fraction(self.expectile, "expectile")
         check_fraction(self.tau, "tau", closed=True)
 
@@ -122,7 +125,8 @@ def make_train(dynamics: odata.Dataset, config: IQLConfig = IQLConfig(), *,
                          "data (label them first, e.g. offline.data.relabel_rewards)")
     data, scale, norm = normalized_dataset(dynamics, "dynamics", config.normalize_observations)
     c = config
-    policy = TanhGaussianPolicy(dynamics.action_size, c.hidden_sizes, c.activation)
+    policy = make_actor(c.actor, dynamics.metadata, dynamics.action_size, c.hidden_sizes,
+                        c.activation)
     critic = QEnsemble(c.num_critics, c.hidden_sizes, c.activation)
     value = StateNet(1, c.hidden_sizes, c.activation)
     opts = {"actor": optax.adam(c.actor_lr), "critic": optax.adam(c.critic_lr),

@@ -42,6 +42,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
 
+import flax.linen as nn
 import jax
 import numpy as np
 import optax
@@ -49,7 +50,6 @@ import optax
 from agents.networks import activation_fn
 from offline import data as odata
 from offline.data import Dataset
-from offline.tanh_gaussian import TanhGaussianPolicy
 
 #: Floor of the standard deviation used by :class:`ObservationNormalizer` (constant features).
 STD_FLOOR = 1e-3
@@ -238,7 +238,7 @@ def normalized_dataset(dataset: odata.Dataset, name: str = "dynamics",
     return jax.device_put(data), scale, normalizer
 
 
-def policy_act(policy: TanhGaussianPolicy, scale: float,
+def policy_act(policy: nn.Module, scale: float,
                normalizer: ObservationNormalizer | None = None
                ) -> Callable[[Any, jax.Array], jax.Array]:
     """The learner API's ``act(actor_params, obs)``: ``action_limit · tanh(μ(obs))``, the raw

@@ -124,6 +124,40 @@ def done_cells(results: Path) -> set[str]:
             if line.strip()}
 
 
+def add_learner_options(parser: Any) -> None:
+    """The learner settings shared by the offline scripts: ``--normalize-observations`` and
+    ``--actor`` (:data:`offline.residual_actor.ACTORS`). Non-default settings give result cells
+    their own key (:func:`setting_key`)."""
+    from offline.residual_actor import ACTORS
+
+    parser.add_argument("--normalize-observations", action="store_true",
+                        help="standardise observations with the dynamics data's statistics "
+                             "(offline.learner.ObservationNormalizer; cells get their own key)")
+    parser.add_argument("--actor", choices=ACTORS, default="mlp",
+                        help="actor class of every learner: a tanh-Gaussian MLP, or the MLP "
+                             "added to the chapter-6 NN-RESIDUAL RMP² base "
+                             "(offline.residual_actor; cells get their own key)")
+
+
+def setting_key(args: Any) -> list:
+    """Cell-key entries of the non-default learner settings of ``args`` (empty for the
+    defaults, so results made before a setting existed keep their keys)."""
+    key = ["normalize_observations"] if args.normalize_observations else []
+    return key + (["actor", args.actor] if args.actor != "mlp" else [])
+
+
+def setting_fields(args: Any) -> dict[str, Any]:
+    """The learner settings of ``args`` as result-row fields."""
+    return {"normalize_observations": bool(args.normalize_observations), "actor": args.actor}
+
+
+def same_setting(row: Mapping[str, Any], args: Any) -> bool:
+    """Whether a result row was made with the learner settings of ``args`` (rows from before a
+    setting existed have its default)."""
+    return (row.get("normalize_observations", False) == args.normalize_observations
+            and row.get("actor", "mlp") == args.actor)
+
+
 def apply_preset(parser: Any, args: Any, preset: Mapping[str, Any],
                  positive: Sequence[str]) -> Any:
     """Fill the arguments left at ``None`` from ``preset`` and refuse (``parser.error``) any of
@@ -186,6 +220,7 @@ def run_stages(args: Any, stages: Mapping[str, Callable[[Any], Any]], header: st
 __all__ = [
     "REWARD_LEARNERS",
     "RewardBatchedState",
+    "add_learner_options",
     "apply_preset",
     "build_plain",
     "done_cells",
@@ -196,4 +231,7 @@ __all__ = [
     "reward_seed_keys",
     "run_actor_params",
     "run_stages",
+    "same_setting",
+    "setting_fields",
+    "setting_key",
 ]

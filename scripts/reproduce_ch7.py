@@ -56,6 +56,7 @@ PRESETS = {
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     from offline.experiment import TABLE_LEARNERS
+    from offline.sweep import add_learner_options, apply_preset
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
@@ -71,15 +72,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--scale", type=int, default=None, help="episodes per dataset source")
     p.add_argument("--eval-episodes", type=int, default=None)
     p.add_argument("--chunk", type=int, default=None, help="gradient steps per compiled call")
-    p.add_argument("--normalize-observations", action="store_true",
-                   help="standardise observations with the dynamics data's statistics "
-                        "(offline.learner.ObservationNormalizer; cells get their own key)")
+    add_learner_options(p)
     p.add_argument("--remove-terminals", action="store_true",
                    help="treat terminals (collisions) as timeouts in both datasets")
     p.add_argument("--data-seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=ROOT / "results" / "ch7")
-    from offline.sweep import apply_preset
-
     args = p.parse_args(argv)
     return apply_preset(p, args, PRESETS[args.preset],
                         ("seeds", "steps", "scale", "eval_episodes", "chunk"))
@@ -100,9 +97,11 @@ def collect_stage(args) -> None:
 
 
 def _cell_key(env: str, scenario: str, learner: str, args) -> str:
+    from offline.sweep import setting_key
+
     key = [env, scenario, learner, args.steps, list(args.hidden), args.seeds, args.scale,
            args.remove_terminals, args.eval_episodes]
-    return json.dumps(key + (["normalize_observations"] if args.normalize_observations else []))
+    return json.dumps(key + setting_key(args))
 
 
 def train_stage(args) -> None:
@@ -110,12 +109,13 @@ def train_stage(args) -> None:
     from offline import collect, evaluate, experiment, scenarios
     from offline import data as odata
     from offline.learner import actor_params
-    from offline.sweep import done_cells, progress_printer
+    from offline.sweep import done_cells, progress_printer, setting_fields
 
     results = args.out / "results.jsonl"
     done = done_cells(results)
     budget = experiment.Budget(steps=args.steps, hidden=tuple(args.hidden),
-                               normalize_observations=args.normalize_observations)
+                               normalize_observations=args.normalize_observations,
+                               actor=args.actor)
     keys = experiment.seed_keys(range(args.seeds))
     for env in args.envs:
         env_obj = collect.make_env(env)
@@ -149,7 +149,7 @@ def train_stage(args) -> None:
                        "device": jax.devices()[0].device_kind,
                        "dynamics_transitions": int(dyn.size),
                        "reward_transitions": int(rd.size),
-                       "normalize_observations": args.normalize_observations,
+                       **setting_fields(args),
                        "reference": evaluator.reference, **ev}
                 results.parent.mkdir(parents=True, exist_ok=True)
                 with open(results, "a") as f:
@@ -168,16 +168,16 @@ def _fmt(mean: float, se: float, bold: bool) -> str:
 def table_stage(args) -> dict:
     """Write and print the Table 7.3-style table; return the per-cell summary."""
     from offline.experiment import TABLE_LEARNERS
+    from offline.sweep import same_setting
 
     path = args.out / "results.jsonl"
     if not path.exists():
         raise SystemExit(f"no results at {path}: run --stage train first")
     rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-    rows = [r for r in rows  # one table per observation setting (rows before the flag: off)
-            if r.get("normalize_observations", False) == args.normalize_observations]
+    rows = [r for r in rows if same_setting(r, args)]  # one table per learner setting
     if not rows:
         raise SystemExit(f"no results with normalize_observations={args.normalize_observations} "
-                         f"in {path}")
+                         f"and actor={args.actor} in {path}")
     cells: dict = {}
     for r in rows:
         s = np.asarray(r["normalized_score"], np.float64)
@@ -233,7 +233,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     run_stages(args, {"collect": collect_stage, "train": train_stage, "table": table_stage},
                f"device {jax.devices()[0].device_kind}; preset {args.preset}: envs {args.envs}, "
                f"{args.seeds} seeds × {args.steps} steps, hidden {args.hidden}, "
-               f"scale {args.scale}, normalize observations {args.normalize_observations}")
+               f"scale {args.scale}, normalize observations {args.normalize_observations}, "
+               f"actor {args.actor}")
 
 if __name__ == "__main__":
     main()

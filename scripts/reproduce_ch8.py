@@ -100,6 +100,7 @@ PRESETS = {
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     from offline.collect import RECIPES
     from offline.survival import REWARD_VARIANTS, TERMINAL_MODES
+    from offline.sweep import add_learner_options, apply_preset
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
@@ -110,9 +111,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--learners", nargs="+", default=list(LEARNERS), choices=LEARNERS)
     p.add_argument("--rewards", nargs="+", default=list(REWARD_VARIANTS),
                    choices=REWARD_VARIANTS)
-    p.add_argument("--normalize-observations", action="store_true",
-                   help="standardise observations with the dynamics data's statistics "
-                        "(offline.learner.ObservationNormalizer; cells get their own key)")
+    add_learner_options(p)
     p.add_argument("--terminals", default="keep", choices=TERMINAL_MODES)
     p.add_argument("--seeds", type=int, default=None, help="seeds per cell (vmapped)")
     p.add_argument("--steps", type=int, default=None, help="gradient steps per run")
@@ -130,8 +129,6 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                    help="filter clearance in metres (default: the reward's obstacle delta)")
     p.add_argument("--data-seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=ROOT / "results" / "ch8")
-    from offline.sweep import apply_preset
-
     args = p.parse_args(argv)
     args = apply_preset(p, args, PRESETS[args.preset],
                         ("seeds", "steps", "scale", "eval_episodes", "chunk", "batch",
@@ -211,7 +208,9 @@ def _cell_key(dataset: str, learner: str, reward: str, args) -> str:
     margin = args.margin if split_name(dataset)[2] else None
     key = [dataset, learner, reward, args.terminals, args.steps, list(args.hidden), args.seeds,
            args.batch, args.scale, args.eval_episodes, margin]
-    return json.dumps(key + (["normalize_observations"] if args.normalize_observations else []))
+    from offline.sweep import setting_key
+
+    return json.dumps(key + setting_key(args))
 
 
 class _Evaluation:
@@ -260,7 +259,8 @@ def train_stage(args) -> None:
     results = args.out / "results.jsonl"
     done = sweep.done_cells(results)
     budget = experiment.Budget(steps=args.steps, hidden=tuple(args.hidden), batch=args.batch,
-                               normalize_observations=args.normalize_observations)
+                               normalize_observations=args.normalize_observations,
+                               actor=args.actor)
     evaluation = None
     for name in args.datasets:
         _, cut, filtered = split_name(name)
@@ -303,7 +303,7 @@ def train_stage(args) -> None:
                        "steps": args.steps, "hidden": list(args.hidden), "batch": args.batch,
                        "runs_in_program": runs, "program_train_s": train_s,
                        "program_eval_s": eval_s, "device": jax.devices()[0].device_kind,
-                       "transitions": int(ds.size),
+                       "transitions": int(ds.size), **sweep.setting_fields(args),
                        "reference": evaluation.evaluator.reference, **ev}
                 with open(results, "a") as f:
                     f.write(json.dumps(row) + "\n")
@@ -595,7 +595,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         f"device {jax.devices()[0].device_kind}; preset {args.preset}: datasets "
         f"{args.datasets}, learners {args.learners}, rewards {args.rewards}, {args.seeds} "
         f"seeds × {args.steps} steps, hidden {args.hidden}, scale {args.scale}, normalize "
-        f"observations {args.normalize_observations}")
+        f"observations {args.normalize_observations}, actor {args.actor}")
 
 if __name__ == "__main__":
     main()

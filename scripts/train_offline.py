@@ -16,7 +16,8 @@ Learners and what each reads: :mod:`offline.experiment`.
 
 Writes to ``--out``: ``metrics.csv`` (per chunk: steps, seed, every training metric),
 ``checkpoints/`` (orbax, every chunk; ``--resume`` continues from the newest and refuses one of
-another learner, scenario or configuration, ``--normalize-observations`` included), and
+another learner, scenario or configuration, ``--normalize-observations`` and ``--actor``
+included), and
 ``result.json`` (the configuration, wall times and the evaluation: mean return, normalised
 score — random 0, expert 100 —, safe % and success % per seed). A progress bar shows steps,
 losses and the ETA.
@@ -45,6 +46,7 @@ import numpy as np
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     from offline.experiment import LEARNERS
     from offline.scenarios import SCENARIOS
+    from offline.sweep import add_learner_options
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--learner", required=True, choices=LEARNERS)
@@ -62,9 +64,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--chunk", type=int, default=500, help="steps per compiled call/checkpoint")
     p.add_argument("--eval-episodes", type=int, default=32)
     p.add_argument("--remove-terminals", action="store_true")
-    p.add_argument("--normalize-observations", action="store_true",
-                   help="standardise every network's observations with the dynamics data's "
-                        "per-feature mean/std (offline.learner.ObservationNormalizer)")
+    add_learner_options(p)
     p.add_argument("--data-seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=Path("runs/offline"))
     p.add_argument("--resume", action="store_true")
@@ -124,7 +124,8 @@ def main(argv: Sequence[str] | None = None) -> dict:
     t_start = time.perf_counter()
     env, dyn, rd = load_data(args)
     budget = experiment.Budget(steps=args.steps, hidden=tuple(args.hidden), batch=args.batch,
-                               normalize_observations=args.normalize_observations)
+                               normalize_observations=args.normalize_observations,
+                               actor=args.actor)
     trainer = experiment.build(args.learner, dyn, rd, budget, args.scenario)
     keys = experiment.seed_keys(args.seeds)
     meta = {"learner": args.learner, "scenario": args.scenario, "env": env,
@@ -133,6 +134,8 @@ def main(argv: Sequence[str] | None = None) -> dict:
             "dynamics_transitions": int(dyn.size)}
     if args.normalize_observations:  # only when on: older checkpoints stay resumable
         meta["normalize_observations"] = True
+    if args.actor != "mlp":
+        meta["actor"] = args.actor
     ckpt_dir = args.out / "checkpoints"
     state, start = None, 0
     if args.resume and checkpoint.latest_step(ckpt_dir) is not None:

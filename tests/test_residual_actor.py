@@ -1,0 +1,163 @@
+"""The offline learners' NN-RESIDUAL actor (:mod:`offline.residual_actor`).
+
+* The RMP² base ``b(s)`` decoded from observations equals ``atanh(clip(a_h/a_max))`` computed in
+  float64 from the environment's own policy inputs (not decoded) and the preset's acceleration.
+* With the MLP's output layer zeroed, the actor's mode is the base policy's clipped action and
+  its log-probability equals a float64 change-of-variables reference.
+* Learners build with ``actor="nn_residual"``: BC and ATAC train with finite losses and their
+  ``act`` starts from the base; bad input names the argument.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import envs
+from mjxrmp import policies as rmp_policies
+from offline import atac, bc, cql, experiment, iql, sweep
+from offline import data as odata
+from offline.learner import actor_params
+from offline.residual_actor import (
+    BASE_CLIP,
+    BASE_VARIANT,
+    ResidualTanhGaussianPolicy,
+    base_pre_tanh,
+    check_actor,
+    make_actor,
+)
+from offline.tanh_gaussian import TanhGaussianPolicy
+
+ENV = "three_link/env3"
+N = 12
+HIDDEN = (16, 16)
+META = {"env": ENV, "action_limit": 1.0, "reward_range": [-5.0, 1.0]}
+
+
+@pytest.fixture(scope="module")
+def states():
+    """Observations of ``N`` env3 scenes with random joint positions and velocities, and the
+    environment's own policy inputs ``(q, q̇, goal, obstacles)`` behind them."""
+    env = envs.make(ENV)
+    reset = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(3), N))
+    q, _, goal, obstacles = jax.vmap(env.policy_inputs)(reset)
+    k1, k2 = jax.random.split(jax.random.PRNGKey(4))
+    q = q + jax.random.uniform(k1, q.shape, minval=-1.0, maxval=1.0)
+    qd = jax.random.uniform(k2, q.shape, minval=-1.5, maxval=1.5)
+    obs = jax.jit(jax.vmap(env.observe))(q, qd, goal, obstacles)
+    return env, obs, (q, qd, goal, obstacles)
+
+
+def _reference_base(inputs) -> np.ndarray:
+    cfg = rmp_policies.default_config("three_link", BASE_VARIANT)
+    a_h = jax.vmap(lambda *a: rmp_policies.acceleration(cfg, *a))(*inputs)
+    return np.arctanh(np.clip(np.asarray(a_h, np.float64), -BASE_CLIP, BASE_CLIP))
+
+
+def _zeroed(params):
+    """``params`` with the residual MLP's output layer set to zero (mean and log-std 0)."""
+    p = jax.tree.map(lambda x: x, params)
+    mlp = p["params"]["residual"]["mlp"]
+    mlp["out"] = jax.tree.map(jnp.zeros_like, mlp["out"])
+    return p
+
+
+def test_base_matches_float64_reference_from_the_true_state(states):
+    _, obs, inputs = states
+    actor = make_actor("nn_residual", META, 3, HIDDEN)
+    ref = _reference_base(inputs)
+    got = np.asarray(base_pre_tanh(actor.spec, actor.rmp_config, 1.0, obs), np.float64)
+    assert np.abs(ref).max() > 0.3, "the scenes must exercise the base"
+    # Decoding q from (sin q, cos q) and the goal from g − x costs float32 rounding; atanh
+    # amplifies it near the clip, so compare the squashed actions too.
+    np.testing.assert_allclose(np.tanh(got), np.tanh(ref), atol=2e-4)
+    np.testing.assert_allclose(got, ref, atol=5e-3)
+    assert np.abs(got).max() <= np.arctanh(BASE_CLIP) + 1e-4
+
+
+def test_zero_residual_is_the_base_and_log_prob_matches_float64(states):
+    _, obs, inputs = states
+    actor = make_actor("nn_residual", META, 3, HIDDEN)
+    assert isinstance(actor, ResidualTanhGaussianPolicy)
+    params = _zeroed(actor.init(jax.random.PRNGKey(0), obs[:1]))
+    dist = actor.apply(params, obs)
+    ref_b = _reference_base(inputs)
+    np.testing.assert_allclose(np.asarray(dist.mode()), np.tanh(ref_b), atol=2e-4)
+    np.testing.assert_array_equal(np.asarray(dist.log_std), 0.0)
+    # log π(a|s) = Σ log N(atanh a; b, 1) − log(1 − a²), float64.
+    a = np.random.default_rng(0).uniform(-0.95, 0.95, size=(N, 3))
+    u = np.arctanh(a)
+    b = np.asarray(dist.mean, np.float64)
+    ref = np.sum(-0.5 * (u - b) ** 2 - 0.5 * np.log(2 * np.pi) - np.log1p(-a * a), axis=-1)
+    np.testing.assert_allclose(np.asarray(dist.log_prob(jnp.asarray(a, jnp.float32))), ref,
+                               rtol=1e-4, atol=1e-3)
+    # No gradient reaches the observation through the base (it is not a learned part).
+    g = jax.grad(lambda o: jnp.sum(base_pre_tanh(actor.spec, actor.rmp_config, 1.0, o)))(obs)
+    np.testing.assert_array_equal(np.asarray(g), 0.0)
+
+
+def _dataset(obs: jax.Array) -> odata.Dataset:
+    n = obs.shape[0]
+    rng = np.random.default_rng(1)
+    ids = np.repeat(np.arange(3), n // 3)
+    timeouts = np.tile(np.arange(n // 3) == n // 3 - 1, 3)
+    o = np.asarray(obs, np.float32)
+    return odata.create(o, rng.uniform(-1, 1, (n, 3)).astype(np.float32),
+                        rng.uniform(-1, 1, n).astype(np.float32), o[::-1].copy(),
+                        np.zeros(n), timeouts, ids, META)
+
+
+def test_learners_train_from_the_base_with_the_residual_actor(states):
+    _, obs, inputs = states
+    ds = _dataset(obs)
+    budget = experiment.Budget(steps=20, hidden=HIDDEN, batch=8, actor="nn_residual")
+    ref = np.clip(np.tanh(_reference_base(inputs)), -1, 1)
+    for learner in ("BC", "Oracle"):
+        trainer = experiment.build(learner, ds, None, budget)
+        state = trainer.init(jax.random.PRNGKey(0))
+        params = _zeroed(actor_params(state))
+        np.testing.assert_allclose(np.asarray(trainer.act(params, obs)), ref, atol=2e-4)
+        state, metrics = jax.jit(trainer.run, static_argnums=1)(state, 20)
+        assert all(np.isfinite(np.asarray(v)).all() for v in jax.tree.leaves(metrics)), learner
+        assert np.isfinite(np.asarray(trainer.act(actor_params(state), obs))).all()
+
+
+def test_mlp_actor_is_the_default_and_unchanged():
+    for cfg in (atac.ATACConfig(), bc.BCConfig(), iql.IQLConfig(), cql.CQLConfig(),
+                experiment.Budget(steps=10)):
+        assert cfg.actor == "mlp"
+    actor = make_actor("mlp", {}, 3, HIDDEN)
+    assert actor == TanhGaussianPolicy(3, HIDDEN, "relu")
+
+
+def test_bad_input_names_the_argument(states):
+    with pytest.raises(ValueError, match="actor must be one of"):
+        check_actor("rmp")
+    for cls in (atac.ATACConfig, bc.BCConfig, iql.IQLConfig, cql.CQLConfig):
+        with pytest.raises(ValueError, match="actor must be one of"):
+            cls(actor="transformer")
+        with pytest.raises(ValueError, match="normalize_observations"):
+            cls(actor="nn_residual", normalize_observations=True)
+    with pytest.raises(ValueError, match="normalize_observations"):
+        experiment.Budget(steps=10, actor="nn_residual", normalize_observations=True)
+    with pytest.raises(ValueError, match=r"lacks \['env'\]"):
+        make_actor("nn_residual", {"action_limit": 1.0}, 3, HIDDEN)
+    with pytest.raises(ValueError, match="action_size=9"):
+        make_actor("nn_residual", META, 9, HIDDEN)
+
+
+def test_scripts_give_non_default_actors_their_own_cells():
+    import argparse
+
+    p = argparse.ArgumentParser()
+    sweep.add_learner_options(p)
+    default, residual = p.parse_args([]), p.parse_args(["--actor", "nn_residual"])
+    assert sweep.setting_key(default) == []
+    assert sweep.setting_key(residual) == ["actor", "nn_residual"]
+    old_row = {"normalize_observations": False}
+    assert sweep.same_setting(old_row, default) and not sweep.same_setting(old_row, residual)
+    assert sweep.same_setting(sweep.setting_fields(residual), residual)
+    with pytest.raises(SystemExit):
+        p.parse_args(["--actor", "rmp"])
