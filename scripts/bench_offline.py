@@ -157,6 +157,8 @@ def main(argv: Sequence[str] | None = None) -> dict:
     p.add_argument("--full-steps", type=int, default=0,
                    help="also time a whole run of this many steps (0: skip)")
     p.add_argument("--full-seeds", type=int, default=8)
+    p.add_argument("--no-rate", action="store_true",
+                   help="skip the per-seed-count rate measurement (only the --full-steps run)")
     p.add_argument("--full-chunk", type=int, default=0,
                    help="run the whole run in compiled chunks of this many steps, writing "
                         "progress to the JSON after each (0: one program)")
@@ -182,7 +184,8 @@ def main(argv: Sequence[str] | None = None) -> dict:
     path = args.json or ROOT / "results" / f"bench_offline_{slug}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     for learner in args.learners:
-        row = measure(learner, args.seeds, chunk, seed=args.seed, data=data)
+        row = ({"learner": learner} if args.no_rate
+               else measure(learner, args.seeds, chunk, seed=args.seed, data=data))
         result["rows"].append(row)
         path.write_text(json.dumps(result, indent=2) + "\n")  # kept if the full run is cut
         if args.full_steps > 0:

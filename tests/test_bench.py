@@ -44,14 +44,16 @@ def test_quick_bench_writes_complete_json(tmp_path, capsys):
 
 def test_offline_full_run_in_chunks_reports_progress(tmp_path):
     """``bench_offline --full-chunk``: the chunked whole run writes its progress to the JSON
-    after each chunk and ends with the same fields as the one-program run."""
+    after each chunk and ends with the same fields as the one-program run; ``--no-rate``
+    skips the rate rows."""
     from scripts import bench_offline
 
     path = tmp_path / "b.json"
     out = bench_offline.main(["--learners", "bc", "--seeds", "1", "--chunk", "20",
                               "--full-steps", "60", "--full-seeds", "2", "--full-chunk", "20",
-                              "--scale", "1", "--json", str(path)])
+                              "--scale", "1", "--no-rate", "--json", str(path)])
     row = json.loads(path.read_text())["rows"][0]
+    assert "rates" not in row
     assert row["full_progress"]["steps_done"] == 60 and row["full_progress"]["seeds"] == 2
     full = out["rows"][0]["full"]
     assert full["chunk"] == 20 and full["steps"] == 60 and full["metrics_finite"]
