@@ -190,6 +190,14 @@ def _latent_norm_program(field):
     return jax.jit(jax.vmap(lambda var, x: jnp.linalg.norm(field.latent(var, x), axis=-1)))
 
 
+def latent_norms(field, variables, xs: jax.Array, chunk: int = 2048) -> np.ndarray:
+    """``‖ψ(x)‖`` along rollouts ``xs (S, n, K, 2)``: ``(S, n, K)``, evaluated ``chunk`` steps at
+    a time so that long checks (``--check-steps auto``) fit in device memory."""
+    program = _latent_norm_program(field)
+    return np.concatenate([np.asarray(program(variables, xs[:, :, k:k + chunk]))
+                           for k in range(0, xs.shape[2], chunk)], axis=-1)
+
+
 def convergence_stats(field, variables, xs: jax.Array, rtol: float = MONOTONE_RTOL
                       ) -> tuple[np.ndarray, np.ndarray]:
     """For rollouts ``xs (S, n, K, 2)`` (goal at the origin): the final distances to the goal
@@ -197,7 +205,7 @@ def convergence_stats(field, variables, xs: jax.Array, rtol: float = MONOTONE_RT
     not converged) and whether ``‖ψ(x_k)‖`` (the Lyapunov function of §4.3.1, recomputed from
     the positions) is non-increasing along each rollout, up to ``rtol·‖ψ(x_0)‖`` of rounding
     ``(S, n)`` (``False`` where non-finite)."""
-    r = np.asarray(_latent_norm_program(field)(variables, xs))        # (S, n, K)
+    r = latent_norms(field, variables, xs)                            # (S, n, K)
     x = np.asarray(xs)
     finite = np.all(np.isfinite(x), axis=(-2, -1)) & np.all(np.isfinite(r), axis=-1)
     final = np.where(finite, np.linalg.norm(x[..., -1, :], axis=-1), np.inf)

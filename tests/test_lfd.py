@@ -176,6 +176,20 @@ def test_latent_rollouts_from_random_starts_converge_monotonically(trained, late
     assert np.linalg.norm(xs[:, -1], axis=-1).max() < 1e-4
 
 
+def test_script_latent_norms_in_chunks_equal_the_direct_ones(trained, trainer, latent_roll,
+                                                               shape):
+    # scripts/lfd_lasa.latent_norms evaluates long checks a chunk of steps at a time (device
+    # memory); the chunks, a ragged last one included, give the norms of one whole evaluation.
+    from scripts.lfd_lasa import latent_norms
+
+    xs, r = latent_roll(trained.variables, jnp.asarray(_box_starts(shape, 4, 0.2)), 100,
+                        shape.dt)
+    got = latent_norms(trainer.field, jax.tree.map(lambda a: a[None], trained.variables),
+                       xs[None], chunk=32)
+    assert got.shape == (1, 4, 101)
+    np.testing.assert_allclose(got[0], np.asarray(r), rtol=1e-6, atol=1e-7)
+
+
 def _worst_case_steps(r0: float, dt: float, eps: float, s_min: float, potential: str,
                       target: float) -> int:
     """Steps of latent_step's radial recursion at the slowest speed s_min, in float64."""
