@@ -25,8 +25,10 @@ CQL        scenario they behave as Oracle does (true rewards of ``D_A``)
 **Budgets.** ATAC's published schedule is 1 M steps with a 100 k-step BC warm start and an actor
 rate of 5e-7 (ANCHOR_FACTS §5). :func:`atac_config` shortens it to ``steps`` with the warm start
 at the same 10 % and the actor rate scaled by ``1e6 / steps`` so that the product (how far the
-slow actor can move) is unchanged; every other rate stays. BC, BCO, the inverse model and RP's
-reward regression get ``steps`` steps too.
+slow actor can move) is unchanged; every other rate stays. ``Budget.actor_rate="published"``
+keeps the published 5e-7 instead (the actor then moves ``steps / 1e6`` as far, on critics
+trained as long as it moves). BC, BCO, the inverse model and RP's reward regression get
+``steps`` steps too.
 
 **Observation standardisation.** ``Budget.normalize_observations`` (default off) turns on every
 learner's ``normalize_observations``: all networks see states standardised with the statistics
@@ -65,13 +67,15 @@ NEEDS_SHARED = ("UDS", "ATAC")
 #: ATAC's published length and actor rate (ANCHOR_FACTS §5).
 REFERENCE_STEPS = 1_000_000
 REFERENCE_ACTOR_LR = 5e-7
+#: How :func:`atac_config` sets the actor rate of a shortened run (module docstring).
+ACTOR_RATES = ("scaled", "published")
 
 
 @dataclasses.dataclass(frozen=True)
 class Budget:
     """Size of one training run: ``steps`` gradient steps, MLP ``hidden`` sizes, ``batch``;
-    whether every learner standardises its observations, and every learner's actor class
-    (module docstring)."""
+    whether every learner standardises its observations, every learner's actor class and
+    ATAC's actor rate rule (module docstring)."""
 
     steps: int = REFERENCE_STEPS
     hidden: tuple[int, ...] = (256, 256, 256)
@@ -79,6 +83,7 @@ class Budget:
     inverse_seed: int = 12345
     normalize_observations: bool = False
     actor: str = "mlp"
+    actor_rate: str = "scaled"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden", tuple(self.hidden))
@@ -90,14 +95,18 @@ class Budget:
             raise ValueError(f"batch must be a positive integer, got {self.batch!r}")
         check_bool(self.normalize_observations, "normalize_observations")
         check_actor(self.actor, self.normalize_observations)
+        if self.actor_rate not in ACTOR_RATES:
+            raise ValueError(f"actor_rate must be one of {list(ACTOR_RATES)}, got "
+                             f"{self.actor_rate!r}")
 
 
 def atac_config(budget: Budget, **overrides: Any) -> atac.ATACConfig:
     """ATAC's settings shortened to ``budget.steps`` (module docstring: warm start 10 %,
-    actor rate × ``1e6 / steps``)."""
+    actor rate × ``1e6 / steps``, or the published rate for ``budget.actor_rate ==
+    "published"``)."""
+    scale = REFERENCE_STEPS / budget.steps if budget.actor_rate == "scaled" else 1.0
     kw = dict(hidden_sizes=budget.hidden, batch_size=budget.batch, num_steps=budget.steps,
-              warmstart_steps=budget.steps // 10,
-              actor_lr=REFERENCE_ACTOR_LR * REFERENCE_STEPS / budget.steps,
+              warmstart_steps=budget.steps // 10, actor_lr=REFERENCE_ACTOR_LR * scale,
               normalize_observations=budget.normalize_observations, actor=budget.actor)
     kw.update(overrides)
     return atac.ATACConfig(**kw)
@@ -236,6 +245,7 @@ def seed_keys(seeds: Sequence[int]) -> jax.Array:
 
 
 __all__ = [
+    "ACTOR_RATES",
     "LEARNERS",
     "NEEDS_SHARED",
     "TABLE_LEARNERS",

@@ -125,8 +125,9 @@ def done_cells(results: Path) -> set[str]:
 
 
 def add_learner_options(parser: Any) -> None:
-    """The learner settings shared by the offline scripts: ``--normalize-observations`` and
-    ``--actor`` (:data:`offline.residual_actor.ACTORS`). Non-default settings give result cells
+    """The learner settings shared by the offline scripts: ``--normalize-observations``,
+    ``--actor`` (:data:`offline.residual_actor.ACTORS`) and ``--actor-rate``
+    (:data:`offline.experiment.ACTOR_RATES`). Non-default settings give result cells
     their own key (:func:`setting_key`)."""
     from offline.residual_actor import ACTORS
 
@@ -137,25 +138,32 @@ def add_learner_options(parser: Any) -> None:
                         help="actor class of every learner: a tanh-Gaussian MLP, or the MLP "
                              "added to the chapter-6 NN-RESIDUAL RMP² base "
                              "(offline.residual_actor; cells get their own key)")
+    parser.add_argument("--actor-rate", choices=experiment.ACTOR_RATES, default="scaled",
+                        help="ATAC-type actor rate of a shortened run: the published 5e-7 x "
+                             "1e6/steps, or the published rate as is "
+                             "(offline.experiment.atac_config; cells get their own key)")
 
 
 def setting_key(args: Any) -> list:
     """Cell-key entries of the non-default learner settings of ``args`` (empty for the
     defaults, so results made before a setting existed keep their keys)."""
     key = ["normalize_observations"] if args.normalize_observations else []
-    return key + (["actor", args.actor] if args.actor != "mlp" else [])
+    key += ["actor", args.actor] if args.actor != "mlp" else []
+    return key + (["actor_rate", args.actor_rate] if args.actor_rate != "scaled" else [])
 
 
 def setting_fields(args: Any) -> dict[str, Any]:
     """The learner settings of ``args`` as result-row fields."""
-    return {"normalize_observations": bool(args.normalize_observations), "actor": args.actor}
+    return {"normalize_observations": bool(args.normalize_observations), "actor": args.actor,
+            "actor_rate": args.actor_rate}
 
 
 def same_setting(row: Mapping[str, Any], args: Any) -> bool:
     """Whether a result row was made with the learner settings of ``args`` (rows from before a
     setting existed have its default)."""
     return (row.get("normalize_observations", False) == args.normalize_observations
-            and row.get("actor", "mlp") == args.actor)
+            and row.get("actor", "mlp") == args.actor
+            and row.get("actor_rate", "scaled") == args.actor_rate)
 
 
 def apply_preset(parser: Any, args: Any, preset: Mapping[str, Any],

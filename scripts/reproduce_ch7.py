@@ -115,7 +115,7 @@ def train_stage(args) -> None:
     done = done_cells(results)
     budget = experiment.Budget(steps=args.steps, hidden=tuple(args.hidden),
                                normalize_observations=args.normalize_observations,
-                               actor=args.actor)
+                               actor=args.actor, actor_rate=args.actor_rate)
     keys = experiment.seed_keys(range(args.seeds))
     for env in args.envs:
         env_obj = collect.make_env(env)

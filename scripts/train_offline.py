@@ -125,7 +125,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     env, dyn, rd = load_data(args)
     budget = experiment.Budget(steps=args.steps, hidden=tuple(args.hidden), batch=args.batch,
                                normalize_observations=args.normalize_observations,
-                               actor=args.actor)
+                               actor=args.actor, actor_rate=args.actor_rate)
     trainer = experiment.build(args.learner, dyn, rd, budget, args.scenario)
     keys = experiment.seed_keys(args.seeds)
     meta = {"learner": args.learner, "scenario": args.scenario, "env": env,
@@ -136,6 +136,8 @@ def main(argv: Sequence[str] | None = None) -> dict:
         meta["normalize_observations"] = True
     if args.actor != "mlp":
         meta["actor"] = args.actor
+    if args.actor_rate != "scaled":
+        meta["actor_rate"] = args.actor_rate
     ckpt_dir = args.out / "checkpoints"
     state, start = None, 0
     if args.resume and checkpoint.latest_step(ckpt_dir) is not None:

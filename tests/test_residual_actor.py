@@ -158,3 +158,17 @@ def test_scripts_give_non_default_actors_their_own_cells():
     assert sweep.same_setting(sweep.setting_fields(residual), residual)
     with pytest.raises(SystemExit):
         p.parse_args(["--actor", "rmp"])
+    published = p.parse_args(["--actor-rate", "published"])
+    assert sweep.setting_key(published) == ["actor_rate", "published"]
+    assert sweep.same_setting(old_row, default) and not sweep.same_setting(old_row, published)
+
+
+def test_actor_rate_rule_of_shortened_atac_runs():
+    # Scaled (default): 5e-7 × 1e6 / steps keeps the published rate × steps; published: 5e-7.
+    scaled = experiment.atac_config(experiment.Budget(steps=20_000))
+    published = experiment.atac_config(experiment.Budget(steps=20_000, actor_rate="published"))
+    assert scaled.actor_lr == pytest.approx(2.5e-5) and published.actor_lr == 5e-7
+    assert scaled.warmstart_steps == published.warmstart_steps == 2_000
+    assert scaled.critic_lr == published.critic_lr
+    with pytest.raises(ValueError, match="actor_rate must be one of"):
+        experiment.Budget(steps=10, actor_rate="fast")
