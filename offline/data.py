@@ -662,8 +662,8 @@ class EpisodeStats(NamedTuple):
     timed_out: np.ndarray  # bool (K,), the last transition is a timeout
 
 
-def _episode_bounds(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Start index and length of each contiguous episode."""
+def episode_bounds(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Start index and length of each contiguous episode of the ``episode_ids`` array ``ids``."""
     if ids.size == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     starts = np.concatenate([[0], np.nonzero(ids[1:] != ids[:-1])[0] + 1])
@@ -682,7 +682,7 @@ def episode_statistics(dataset: Dataset) -> tuple[EpisodeStats, dict[str, Any]]:
     """
     ids = np.asarray(dataset.episode_ids)
     rewards = np.asarray(dataset.rewards, dtype=np.float64)
-    starts, lengths = _episode_bounds(ids)
+    starts, lengths = episode_bounds(ids)
     k = starts.size
     if k:
         returns = np.add.reduceat(rewards, starts)
@@ -732,7 +732,7 @@ def filter_episodes(dataset: Dataset,
         raise ValueError(f"episode mask must have shape (num_episodes,) = ({k},), got {m.shape}")
     if m.dtype != np.bool_:
         raise ValueError(f"episode mask must be boolean, got dtype {m.dtype}")
-    _, lengths = _episode_bounds(np.asarray(dataset.episode_ids))
+    _, lengths = episode_bounds(np.asarray(dataset.episode_ids))
     rows = np.repeat(m, lengths) if k else np.zeros(0, bool)
     return _take(dataset, rows)
 
@@ -747,7 +747,7 @@ def split_by_episode(dataset: Dataset, fraction: float,
     """
     if not 0.0 <= float(fraction) <= 1.0:
         raise ValueError(f"fraction must lie in [0, 1], got {fraction!r}")
-    _, lengths = _episode_bounds(np.asarray(dataset.episode_ids))
+    _, lengths = episode_bounds(np.asarray(dataset.episode_ids))
     k = lengths.size
     n_first = round(float(fraction) * k)
     perm = np.asarray(jax.random.permutation(key, k))
@@ -801,6 +801,7 @@ __all__ = [
     "check_environment",
     "concatenate",
     "create",
+    "episode_bounds",
     "episode_statistics",
     "filter_episodes",
     "from_transitions",

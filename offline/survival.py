@@ -17,6 +17,12 @@ ANCHOR_FACTS §5).
   of successful vs failed episodes. Datasets *without* length bias come from
   ``offline.collect.collect_recipe(..., cut_at_collision=False)`` (every episode runs the full
   horizon, like D4RL's halfcheetah in §8.4.1).
+* **Designed length bias by a goal deadline** (the issue's "timeout-before-goal" cut):
+  :func:`cut_before_goal` ends every episode that has not brought the end effector within the
+  success radius of the goal by its ``deadline``-th transition there, with a **terminal** (a
+  failed episode, absorbing as a collision), and keeps the episodes that arrive in time whole.
+  Failures are then short and successes long: the length bias of §8.3.3 by construction, on
+  top of (or instead of) the collision cut.
 * **Positive data bias** (eq 8.3): :func:`positive_data_bias`.
 """
 
@@ -157,6 +163,53 @@ def length_bias_statistics(dataset: odata.Dataset, *, success: Any = None,
     }
 
 
+def goal_distances(dataset: odata.Dataset, which: str = "next_observations") -> np.ndarray:
+    """``‖g − x‖`` per transition from the ``goal_minus_x`` block of the observation layout
+    recorded in the dataset's metadata (:func:`offline.collect.environment_metadata`), for
+    ``which`` = ``"observations"`` or ``"next_observations"``; float64 ``(N,)``."""
+    layout = dataset.metadata.get("observation_layout")
+    if not layout or "goal_minus_x" not in layout:
+        raise ValueError("dataset metadata has no observation_layout with a 'goal_minus_x' "
+                         "block (collect it with offline.collect)")
+    if which not in ("observations", "next_observations"):
+        raise ValueError(f"which must be 'observations' or 'next_observations', got {which!r}")
+    start, stop = layout["goal_minus_x"]
+    block = np.asarray(getattr(dataset, which), np.float64)[:, start:stop]
+    return np.linalg.norm(block, axis=-1)
+
+
+def cut_before_goal(dataset: odata.Dataset, deadline: int, radius: float = 0.05
+                    ) -> odata.Dataset:
+    """``dataset`` with a designed length bias (module docstring): an episode whose end
+    effector is not within ``radius`` of the goal (``next_observations``, :func:`goal_distances`)
+    at any of its first ``deadline`` transitions keeps only those, the last one a terminal (its
+    timeout cleared); episodes that arrive in time, or end before the deadline, are unchanged.
+    Host-side; records ``metadata["goal_deadline"] = {"deadline", "radius", "cut_episodes"}``.
+    The default radius is the reaching environments' success radius (0.05 m)."""
+    odata.validate(dataset)
+    if not (isinstance(deadline, int | np.integer) and not isinstance(deadline, bool)
+            and deadline >= 1):
+        raise ValueError(f"deadline must be an integer >= 1, got {deadline!r}")
+    if not (isinstance(radius, int | float) and radius > 0):
+        raise ValueError(f"radius must be a positive number, got {radius!r}")
+    ids = np.asarray(dataset.episode_ids)
+    starts, lengths = odata.episode_bounds(ids)
+    position = np.arange(ids.size) - np.repeat(starts, lengths)
+    reached = goal_distances(dataset) < radius
+    early = reached & (position < deadline)
+    arrived = np.logical_or.reduceat(early, starts) if starts.size else np.zeros(0, bool)
+    cut = ~arrived & (lengths > deadline)
+    cut_rows = np.repeat(cut, lengths)
+    keep = ~cut_rows | (position < deadline)
+    out = jax.tree.map(lambda x: np.asarray(x)[keep], dataset)
+    last = (cut_rows & (position == deadline - 1))[keep]
+    terminals = np.where(last, 1, np.asarray(out.terminals)).astype(np.asarray(out.terminals).dtype)
+    timeouts = np.where(last, 0, np.asarray(out.timeouts)).astype(np.asarray(out.timeouts).dtype)
+    meta = out.metadata.updated(goal_deadline={"deadline": int(deadline), "radius": float(radius),
+                                               "cut_episodes": int(cut.sum())})
+    return odata.validate(out.replace(terminals=terminals, timeouts=timeouts, metadata=meta))
+
+
 def positive_data_bias(scores: Mapping[str, float], *, optimal: float = 100.0) -> float:
     """The empirical positive-data-bias estimate of thesis eq 8.3 (Fig 8.6, ANCHOR_FACTS §5):
 
@@ -190,6 +243,8 @@ __all__ = [
     "REWARD_VARIANTS",
     "TERMINAL_MODES",
     "WRONG_REWARDS",
+    "cut_before_goal",
+    "goal_distances",
     "length_bias_statistics",
     "positive_data_bias",
     "variant",

@@ -23,7 +23,11 @@ Datasets (3-link ``three_link/env3``, :func:`offline.collect.collect_recipe` wit
 i.e. its documented fallback sources): for every recipe of ``--recipes`` (default ``mixed`` and
 ``medium-replay``) ``<recipe>-cut`` — episodes cut at the first collision (a terminal): the
 length bias of §8.3.3 — and ``<recipe>-full`` — ``cut_at_collision=False``, every episode runs
-the full horizon (no length bias, like D4RL's halfcheetah in §8.4.1). With ``--safety`` (on by
+the full horizon (no length bias, like D4RL's halfcheetah in §8.4.1). With ``--goal-deadline N``
+also ``<recipe>-deadline``: the ``-cut`` data with every episode that has not reached the goal
+by its ``N``-th step cut there as a terminal (:func:`offline.survival.cut_before_goal`, the
+"timeout-before-goal" cut: a designed, strong length bias); it counts as length-biased in (a)
+and (b). With ``--safety`` (on by
 default) also ``<safety-dataset>-filtered``: :func:`offline.filtering.filter_collision_margin`
 of ``--safety-dataset`` (default ``mixed-full``, whose colliding episodes run on through the
 obstacles) with ``--margin`` (default the reward's δ = 0.05 m: exactly the transitions with a
@@ -125,6 +129,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--safety", action=argparse.BooleanOptionalAction, default=True,
                    help="also train on the collision-filtered dataset (§8.4.2)")
     p.add_argument("--safety-dataset", default="mixed-full")
+    p.add_argument("--goal-deadline", type=int, default=None, metavar="STEPS",
+                   help="also train on <recipe>-deadline: the collision-cut data with every "
+                        "episode that has not reached the goal by this many steps cut there "
+                        "(a terminal; offline.survival.cut_before_goal): a designed length bias")
     p.add_argument("--margin", type=float, default=None,
                    help="filter clearance in metres (default: the reward's obstacle delta)")
     p.add_argument("--data-seed", type=int, default=0)
@@ -133,11 +141,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     args = apply_preset(p, args, PRESETS[args.preset],
                         ("seeds", "steps", "scale", "eval_episodes", "chunk", "batch",
                          "reference_episodes"))
+    if args.goal_deadline is not None and args.goal_deadline < 1:
+        p.error("--goal-deadline must be a positive number of steps")
     if args.margin is None:
         from offline.collect import make_env
 
         args.margin = float(make_env(ENV).obstacle_delta)
-    base = base_datasets(args.recipes)
+    base = base_datasets(args.recipes, args.goal_deadline)
     if args.safety and args.safety_dataset not in base:
         p.error(f"--safety-dataset {args.safety_dataset!r} is not one of {base}")
     every = base + ([filtered_name(args)] if args.safety else [])
@@ -153,9 +163,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 # Datasets
 
 
-def base_datasets(recipes: Sequence[str]) -> list[str]:
-    """``<recipe>-cut`` and ``<recipe>-full`` for every recipe."""
-    return [f"{r}-{mode}" for r in recipes for mode in ("cut", "full")]
+def base_datasets(recipes: Sequence[str], goal_deadline: int | None = None) -> list[str]:
+    """``<recipe>-cut`` and ``<recipe>-full`` for every recipe, and ``<recipe>-deadline``
+    when ``goal_deadline`` is given."""
+    modes = ("cut", "full") + (("deadline",) if goal_deadline else ())
+    return [f"{r}-{mode}" for r in recipes for mode in modes]
 
 
 def filtered_name(args) -> str:
@@ -163,11 +175,17 @@ def filtered_name(args) -> str:
 
 
 def split_name(name: str) -> tuple[str, bool, bool]:
-    """``(recipe, cut_at_collision, filtered)`` of a dataset name."""
+    """``(recipe, cut_at_collision, filtered)`` of a dataset name (a ``-deadline`` dataset is
+    derived from the collision-cut one)."""
     filtered = name.endswith("-filtered")
     stem = name.removesuffix("-filtered")
     recipe, mode = stem.rsplit("-", 1)
-    return recipe, mode == "cut", filtered
+    return recipe, mode in ("cut", "deadline"), filtered
+
+
+def is_deadline(name: str) -> bool:
+    """Whether ``name`` is a goal-deadline dataset (``<recipe>-deadline``)."""
+    return name.removesuffix("-filtered").endswith("-deadline")
 
 
 def data_path(args, recipe: str, cut: bool) -> Path:
@@ -191,12 +209,16 @@ def load_dataset(args, name: str):
     from offline import collect
     from offline import data as odata
     from offline.filtering import filter_collision_margin
+    from offline.survival import cut_before_goal
 
     recipe, cut, filtered = split_name(name)
     path = data_path(args, recipe, cut)
     if not path.exists():
         raise SystemExit(f"no dataset at {path}: run --stage collect first")
-    ds = odata.check_environment(odata.load(path), collect.make_env(ENV), name=name)
+    env = collect.make_env(ENV)
+    ds = odata.check_environment(odata.load(path), env, name=name)
+    if is_deadline(name):
+        ds = cut_before_goal(ds, args.goal_deadline, radius=float(env.success_radius))
     return filter_collision_margin(ds, ENV, args.margin) if filtered else ds
 
 
@@ -210,7 +232,8 @@ def _cell_key(dataset: str, learner: str, reward: str, args) -> str:
            args.batch, args.scale, args.eval_episodes, margin]
     from offline.sweep import setting_key
 
-    return json.dumps(key + setting_key(args))
+    deadline = ["goal_deadline", args.goal_deadline] if is_deadline(dataset) else []
+    return json.dumps(key + deadline + setting_key(args))
 
 
 class _Evaluation:
@@ -368,7 +391,7 @@ def acceptance(args, cells: dict, bias: dict, lengths: dict) -> dict:
     """The acceptance checks of the module docstring, computed from ``cells``."""
     from offline.survival import WRONG_REWARDS
 
-    base = base_datasets(args.recipes)
+    base = base_datasets(args.recipes, args.goal_deadline)
     well_above, wrong_mean = {}, {}
     for d in base:
         bc = cells.get((d, "BC", "none"))
@@ -383,9 +406,11 @@ def acceptance(args, cells: dict, bias: dict, lengths: dict) -> dict:
     larger = {}
     for recipe in args.recipes:
         for lrn in PESSIMISTIC:
-            cut, full = bias.get((f"{recipe}-cut", lrn)), bias.get((f"{recipe}-full", lrn))
-            if cut is not None and full is not None:
-                larger[f"{recipe}/{lrn}"] = bool(cut > full)
+            full = bias.get((f"{recipe}-full", lrn))
+            for mode, name in (("cut", recipe), ("deadline", f"{recipe}-deadline")):
+                biased_bias = bias.get((f"{recipe}-{mode}", lrn))
+                if biased_bias is not None and full is not None:
+                    larger[f"{name}/{lrn}"] = bool(biased_bias > full)
     summary = {
         "rule_a": f"'well above BC': mean over the wrong rewards {list(WRONG_REWARDS)} of the "
                   f"mean normalised score >= BC's mean + {WELL_ABOVE:g}; checked for "
@@ -396,8 +421,8 @@ def acceptance(args, cells: dict, bias: dict, lengths: dict) -> dict:
         "well_above_bc": well_above,
         "a_length_biased_well_above_bc": bool(all(biased)) if biased else None,
         "a_unbiased_not_well_above_bc": (not any(unbiased)) if unbiased else None,
-        "rule_b": "eq 8.3 estimate (mean normalised scores, J* = 100) on <recipe>-cut > on "
-                  "<recipe>-full (inf > any finite value)",
+        "rule_b": "eq 8.3 estimate (mean normalised scores, J* = 100) on <recipe>-cut (and "
+                  "<recipe>-deadline) > on <recipe>-full (inf > any finite value)",
         "bias_estimate": {f"{d}/{lrn}": _json_float(v) for (d, lrn), v in sorted(bias.items())},
         "bias_larger_on_length_biased": larger,
         "b_bias_larger_on_length_biased": bool(all(larger.values())) if larger else None,
@@ -459,7 +484,7 @@ def _plot(args, cells: dict, bias: dict, lengths: dict) -> None:
 
     from offline.survival import REWARD_VARIANTS
 
-    base = base_datasets(args.recipes)
+    base = base_datasets(args.recipes, args.goal_deadline)
     learners = [lrn for lrn in LEARNERS if lrn != "BC"]
     colours = dict(zip(REWARD_VARIANTS, ("tab:green", "tab:grey", "tab:orange", "tab:red"),
                        strict=True))
@@ -518,10 +543,10 @@ def length_statistics(args, statistics: Callable[[Any], dict]) -> dict[str, dict
     that are missing."""
     cache = args.out / "length_bias.json"
     stats = json.loads(cache.read_text()) if cache.exists() else {}
-    for d in base_datasets(args.recipes):
+    for d in base_datasets(args.recipes, args.goal_deadline):
         if data_path(args, *split_name(d)[:2]).exists():
             stats[d] = statistics(load_dataset(args, d))
-    stats = {d: stats[d] for d in base_datasets(args.recipes) if d in stats}
+    stats = {d: stats[d] for d in base_datasets(args.recipes, args.goal_deadline) if d in stats}
     if stats:
         cache.write_text(json.dumps(stats))
     else:

@@ -232,3 +232,21 @@ def test_cpu_smoke_end_to_end(tmp_path):
         assert (tmp_path / f).exists()
     ch8.main([*argv, "--stage", "train"])  # resumable: nothing left to train
     assert len((tmp_path / "results.jsonl").read_text().splitlines()) == len(rows)
+
+
+def test_goal_deadline_datasets_are_named_and_keyed(tmp_path):
+    """``--goal-deadline N`` adds ``<recipe>-deadline`` (derived from the cut data, counted as
+    length-biased), whose cells carry N in their key; other cells keep their keys."""
+    base = ["--out", str(tmp_path), "--recipes", "mixed", "--scale", "1"]
+    args = ch8.parse_args([*base, "--goal-deadline", "200"])
+    assert args.datasets == ["mixed-cut", "mixed-full", "mixed-deadline", "mixed-full-filtered"]
+    assert ch8.split_name("mixed-deadline") == ("mixed", True, False)
+    assert ch8.is_deadline("mixed-deadline") and not ch8.is_deadline("mixed-cut")
+    assert json.loads(ch8._cell_key("mixed-deadline", "ATAC", "zero", args))[-2:] == [
+        "goal_deadline", 200]
+    plain = ch8.parse_args(base)
+    assert ch8._cell_key("mixed-cut", "ATAC", "zero", args) == ch8._cell_key(
+        "mixed-cut", "ATAC", "zero", plain)
+    assert "mixed-deadline" not in plain.datasets
+    with pytest.raises(SystemExit):
+        ch8.parse_args([*base, "--goal-deadline", "0"])

@@ -199,3 +199,71 @@ def test_uncut_dataset_has_full_horizon_episodes_and_no_terminals(collected):
     np.testing.assert_array_equal(odata.episode_statistics(rec)[0].lengths, HORIZON)
     with pytest.raises(ValueError, match="cut_at_collision must be a bool"):
         oc.rollout(ENV, BEHAVIOUR, 1, jax.random.PRNGKey(0), cut_at_collision=0)
+
+
+def _goal_dataset(distances: list[list[float]], ends: list[str]) -> odata.Dataset:
+    """Episodes whose next-observation goal distance follows ``distances`` (one list per
+    episode, ids 10, 11, …), ending with a ``"terminal"`` or ``"timeout"``; the layout puts
+    ``g − x`` at columns 1–2 (the distance along the first axis)."""
+    rows, ids, term, tout = [], [], [], []
+    for e, (ds_, end) in enumerate(zip(distances, ends, strict=True)):
+        for t, d in enumerate(ds_):
+            rows.append([float(t), d, 0.0])
+            ids.append(10 + e)
+            last = t == len(ds_) - 1
+            term.append(last and end == "terminal")
+            tout.append(last and end == "timeout")
+    nxt = np.asarray(rows, np.float32)
+    n = len(rows)
+    return odata.create(nxt - 1.0, np.zeros((n, 1), np.float32), np.ones(n, np.float32), nxt,
+                        np.asarray(term), np.asarray(tout), np.asarray(ids),
+                        metadata={"observation_layout": {"goal_minus_x": [1, 3]}})
+
+
+def test_cut_before_goal_hand_computed():
+    # Deadline 3, radius 0.05: episode 10 arrives at its 3rd transition (kept whole), 11 never
+    # arrives (cut to 3, last a terminal), 12 arrives only at its 5th (cut), 13 is shorter than
+    # the deadline (kept, its collision terminal too).
+    ds = _goal_dataset([[0.5, 0.2, 0.04, 0.3, 0.3], [0.5, 0.4, 0.3, 0.2, 0.1, 0.1],
+                        [0.5, 0.4, 0.3, 0.2, 0.01], [0.5, 0.4]],
+                       ["timeout", "timeout", "timeout", "terminal"])
+    np.testing.assert_allclose(sv.goal_distances(ds)[:3], [0.5, 0.2, 0.04], rtol=1e-6)
+    out = sv.cut_before_goal(ds, deadline=3)
+    per, _ = odata.episode_statistics(out)
+    assert per.episode_ids.tolist() == [10, 11, 12, 13]
+    assert per.lengths.tolist() == [5, 3, 3, 2]
+    assert per.terminated.tolist() == [False, True, True, True]
+    assert per.timed_out.tolist() == [True, False, False, False]
+    assert int(np.asarray(out.terminals).sum()) == 3 and int(np.asarray(out.timeouts).sum()) == 1
+    assert out.metadata["goal_deadline"] == {"deadline": 3, "radius": 0.05, "cut_episodes": 2}
+    # The kept transitions are the first three of each cut episode, unchanged.
+    np.testing.assert_array_equal(np.asarray(out.next_observations)[5:8],
+                                  np.asarray(ds.next_observations)[5:8])
+    # With radius 0.35 episodes 11 and 12 arrive at their 3rd transition (0.3): nothing is cut.
+    assert sv.cut_before_goal(ds, deadline=3, radius=0.35).metadata["goal_deadline"][
+        "cut_episodes"] == 0
+    for bad in (0, 2.5, True):
+        with pytest.raises(ValueError, match="deadline must be an integer"):
+            sv.cut_before_goal(ds, deadline=bad)
+    with pytest.raises(ValueError, match="radius must be a positive"):
+        sv.cut_before_goal(ds, deadline=3, radius=0.0)
+    with pytest.raises(ValueError, match="observation_layout"):
+        sv.cut_before_goal(ds.replace(metadata=odata.Metadata({})), deadline=3)
+
+
+def test_goal_deadline_gives_collected_data_a_length_bias(collected):
+    # On real env3 data (uncut at collisions), the goal distance from the observation is the
+    # environment's, and a deadline makes the failures short.
+    ds, traj = collected[False]
+    d = np.asarray(sv.goal_distances(ds)).reshape(BATCH, HORIZON)
+    np.testing.assert_allclose(d[:, -1], np.asarray(traj["episode"]["final_goal_distance"]),
+                               rtol=1e-5, atol=1e-6)
+    # The radius between the episodes' closest approaches in their first 50 steps: some arrive.
+    first = np.asarray(sv.goal_distances(ds)).reshape(BATCH, HORIZON)[:, :50].min(axis=1)
+    radius = float(np.sort(first)[BATCH // 2])
+    out = sv.cut_before_goal(ds, deadline=50, radius=radius)
+    per, _ = odata.episode_statistics(out)
+    cut = out.metadata["goal_deadline"]["cut_episodes"]
+    assert 0 < cut < per.episode_ids.size, "the noisy behaviour must both miss and reach"
+    assert per.terminated.sum() == cut and (per.lengths[per.terminated] == 50).all()
+    assert (per.lengths[~per.terminated] == HORIZON).all()
