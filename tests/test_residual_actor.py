@@ -68,7 +68,8 @@ def test_base_matches_float64_reference_from_the_true_state(states):
     _, obs, inputs = states
     actor = make_actor("nn_residual", META, 3, HIDDEN)
     ref = _reference_base(inputs)
-    got = np.asarray(base_pre_tanh(actor.spec, actor.rmp_config, 1.0, obs), np.float64)
+    base = jax.jit(lambda o: base_pre_tanh(actor.spec, actor.rmp_config, 1.0, o))
+    got = np.asarray(base(obs), np.float64)
     assert np.abs(ref).max() > 0.3, "the scenes must exercise the base"
     # Decoding q from (sin q, cos q) and the goal from g − x costs float32 rounding; atanh
     # amplifies it near the clip, so compare the squashed actions too.
@@ -81,8 +82,8 @@ def test_zero_residual_is_the_base_and_log_prob_matches_float64(states):
     _, obs, inputs = states
     actor = make_actor("nn_residual", META, 3, HIDDEN)
     assert isinstance(actor, ResidualTanhGaussianPolicy)
-    params = _zeroed(actor.init(jax.random.PRNGKey(0), obs[:1]))
-    dist = actor.apply(params, obs)
+    params = _zeroed(jax.jit(actor.init)(jax.random.PRNGKey(0), obs[:1]))
+    dist = jax.jit(actor.apply)(params, obs)
     ref_b = _reference_base(inputs)
     np.testing.assert_allclose(np.asarray(dist.mode()), np.tanh(ref_b), atol=2e-4)
     np.testing.assert_array_equal(np.asarray(dist.log_std), 0.0)
