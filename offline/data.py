@@ -711,7 +711,8 @@ def episode_statistics(dataset: Dataset) -> tuple[EpisodeStats, dict[str, Any]]:
     return per, summary
 
 
-def _take(dataset: Dataset, rows: np.ndarray) -> Dataset:
+def take_rows(dataset: Dataset, rows: np.ndarray) -> Dataset:
+    """The transitions ``rows`` (a boolean mask or indices) of ``dataset``, host-side."""
     return jax.tree.map(lambda x: np.asarray(x)[rows], dataset)
 
 
@@ -734,7 +735,7 @@ def filter_episodes(dataset: Dataset,
         raise ValueError(f"episode mask must be boolean, got dtype {m.dtype}")
     _, lengths = episode_bounds(np.asarray(dataset.episode_ids))
     rows = np.repeat(m, lengths) if k else np.zeros(0, bool)
-    return _take(dataset, rows)
+    return take_rows(dataset, rows)
 
 
 def split_by_episode(dataset: Dataset, fraction: float,
@@ -811,5 +812,6 @@ __all__ = [
     "sample",
     "save",
     "split_by_episode",
+    "take_rows",
     "validate",
 ]

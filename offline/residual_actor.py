@@ -40,7 +40,8 @@ import jax.numpy as jnp
 
 from agents.policies import ObservationSpec, hand_designed_mean
 from mjxrmp import policies as rmp_policies
-from offline.tanh_gaussian import LOG_STD_MAX, LOG_STD_MIN, TanhGaussian, TanhGaussianPolicy
+from offline.collect import make_env
+from offline.tanh_gaussian import TanhGaussian, TanhGaussianPolicy
 
 #: Actor classes of the offline learners (module docstring).
 ACTORS = ("mlp", "nn_residual")
@@ -71,24 +72,17 @@ def base_pre_tanh(spec: ObservationSpec, rmp_config: rmp_policies.PolicyConfig,
 
 
 class ResidualTanhGaussianPolicy(nn.Module):
-    """``u ~ N(μ(s) + b(s), σ(s)²)``, ``a = tanh(u)`` (module docstring): the MLP (submodule
-    ``"residual"``, a :class:`TanhGaussianPolicy`) gives ``(μ, log σ)``, the RMP² base ``b``."""
+    """``u ~ N(μ(s) + b(s), σ(s)²)``, ``a = tanh(u)`` (module docstring): the MLP
+    ``residual`` (a :class:`TanhGaussianPolicy`, its own submodule) gives ``(μ, log σ)``, the
+    RMP² base ``b``."""
 
-    action_size: int
+    residual: TanhGaussianPolicy
     spec: ObservationSpec
     rmp_config: rmp_policies.PolicyConfig
     action_limit: float
-    hidden_sizes: Sequence[int] = (256, 256, 256)
-    activation: str = "relu"
-    log_std_min: float = LOG_STD_MIN
-    log_std_max: float = LOG_STD_MAX
-    out_scale: float = 0.1
 
-    @nn.compact
     def __call__(self, obs: jax.Array) -> TanhGaussian:
-        dist = TanhGaussianPolicy(self.action_size, tuple(self.hidden_sizes), self.activation,
-                                  self.log_std_min, self.log_std_max, self.out_scale,
-                                  name="residual")(obs)
+        dist = self.residual(obs)
         base = base_pre_tanh(self.spec, self.rmp_config, self.action_limit, obs)
         return TanhGaussian(dist.mean + base, dist.log_std)
 
@@ -100,11 +94,9 @@ def make_actor(actor: str, metadata: Mapping[str, Any], action_size: int,
     (``metadata["env"]``, ``["env_kwargs"]``, ``["action_limit"]``: recorded by
     :mod:`offline.collect`) and an RMP² preset for its robot."""
     check_actor(actor)
-    hidden = tuple(hidden_sizes)
+    mlp = TanhGaussianPolicy(action_size, tuple(hidden_sizes), activation)
     if actor == "mlp":
-        return TanhGaussianPolicy(action_size, hidden, activation)
-    from offline.collect import make_env  # deferred: collect imports the environments
-
+        return mlp
     missing = [k for k in ("env", "action_limit") if k not in metadata]
     if missing:
         raise ValueError(f"actor='nn_residual' needs the dataset's environment; its metadata "
@@ -116,8 +108,7 @@ def make_actor(actor: str, metadata: Mapping[str, Any], action_size: int,
         raise ValueError(f"actor='nn_residual' needs joint-acceleration actions ({dof} for "
                          f"{metadata['env']}), got action_size={action_size}")
     cfg = rmp_policies.default_config(spec.robot, BASE_VARIANT)
-    return ResidualTanhGaussianPolicy(action_size, spec, cfg, float(metadata["action_limit"]),
-                                      hidden, activation)
+    return ResidualTanhGaussianPolicy(mlp, spec, cfg, float(metadata["action_limit"]))
 
 
 __all__ = [

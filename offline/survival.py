@@ -201,7 +201,7 @@ def cut_before_goal(dataset: odata.Dataset, deadline: int, radius: float = 0.05
     cut = ~arrived & (lengths > deadline)
     cut_rows = np.repeat(cut, lengths)
     keep = ~cut_rows | (position < deadline)
-    out = jax.tree.map(lambda x: np.asarray(x)[keep], dataset)
+    out = odata.take_rows(dataset, keep)
     last = (cut_rows & (position == deadline - 1))[keep]
     terminals = np.where(last, 1, np.asarray(out.terminals)).astype(np.asarray(out.terminals).dtype)
     timeouts = np.where(last, 0, np.asarray(out.timeouts)).astype(np.asarray(out.timeouts).dtype)

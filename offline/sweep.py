@@ -31,6 +31,7 @@ import numpy as np
 from offline import data as odata
 from offline import experiment, survival
 from offline.learner import Trainer, actor_params
+from offline.residual_actor import ACTORS
 
 #: Learners whose data reward matters (trained once per reward variant); BC reads no reward.
 REWARD_LEARNERS = ("ATAC", "PSPI", "IQL", "CQL")
@@ -129,8 +130,6 @@ def add_learner_options(parser: Any) -> None:
     ``--actor`` (:data:`offline.residual_actor.ACTORS`) and ``--actor-rate``
     (:data:`offline.experiment.ACTOR_RATES`). Non-default settings give result cells
     their own key (:func:`setting_key`)."""
-    from offline.residual_actor import ACTORS
-
     parser.add_argument("--normalize-observations", action="store_true",
                         help="standardise observations with the dynamics data's statistics "
                              "(offline.learner.ObservationNormalizer; cells get their own key)")
