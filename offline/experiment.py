@@ -24,11 +24,15 @@ CQL        scenario they behave as Oracle does (true rewards of ``D_A``)
 
 **Budgets.** ATAC's published schedule is 1 M steps with a 100 k-step BC warm start and an actor
 rate of 5e-7 (ANCHOR_FACTS §5). :func:`atac_config` shortens it to ``steps`` with the warm start
-at the same 10 % and the actor rate scaled by ``1e6 / steps`` so that the product (how far the
-slow actor can move) is unchanged; every other rate stays. ``Budget.actor_rate="published"``
-keeps the published 5e-7 instead (the actor then moves ``steps / 1e6`` as far, on critics
-trained as long as it moves). BC, BCO, the inverse model and RP's reward regression get
-``steps`` steps too.
+at the same 10 % (``Budget.warmstart``; the 7-DoF Franka needs more, BENCHMARKS) and every rate as
+published (``Budget.actor_rate="published"``, the default):
+the slow actor then moves ``steps / 1e6`` as far as in a full run, on critics trained as long
+as it moves. ``actor_rate="scaled"`` multiplies the actor rate by ``1e6 / steps`` instead, so
+that the product (how far the actor can move) is unchanged — the rule of our first tables. It
+was the default until measured against the published rate on the 3-link (20 k steps, NN-RESIDUAL
+actor, BENCHMARKS "Chapter 7 with the published actor rate"): the scaled rate drives the actor by
+critics trained 50× less than in a full run and lost 20–30 points (Oracle 51 vs 73, MAHALO 45 vs
+72 at β 16). BC, BCO, the inverse model and RP's reward regression get ``steps`` steps too.
 
 **Observation standardisation.** ``Budget.normalize_observations`` (default off) turns on every
 learner's ``normalize_observations``: all networks see states standardised with the statistics
@@ -62,11 +66,15 @@ from offline.residual_actor import check_actor
 TABLE_LEARNERS = ("MAHALO", "RP", "AP", "UDS", "ATAC", "BCO", "BC", "Oracle")
 #: Every learner this module builds.
 LEARNERS = (*TABLE_LEARNERS, "PSPI", "IQL", "CQL")
+#: Learners with ATAC's Bellman weight β (``init(key, beta)`` takes it traced: vmap over β).
+BETA_LEARNERS = ("MAHALO", "RP", "AP", "UDS", "ATAC", "Oracle", "PSPI")
 #: Learners that need action-labelled reward data (a reward dataset overlapping ``D_A``).
 NEEDS_SHARED = ("UDS", "ATAC")
 #: ATAC's published length and actor rate (ANCHOR_FACTS §5).
 REFERENCE_STEPS = 1_000_000
 REFERENCE_ACTOR_LR = 5e-7
+#: Fraction of the steps in ATAC's BC warm start (published: 100 k of 1 M).
+DEFAULT_WARMSTART = 0.1
 #: How :func:`atac_config` sets the actor rate of a shortened run (module docstring).
 ACTOR_RATES = ("scaled", "published")
 
@@ -74,8 +82,9 @@ ACTOR_RATES = ("scaled", "published")
 @dataclasses.dataclass(frozen=True)
 class Budget:
     """Size of one training run: ``steps`` gradient steps, MLP ``hidden`` sizes, ``batch``;
-    whether every learner standardises its observations, every learner's actor class and
-    ATAC's actor rate rule (module docstring)."""
+    whether every learner standardises its observations, every learner's actor class, the
+    fraction ``warmstart`` of ATAC's steps spent in BC warm start and ATAC's actor rate rule
+    (module docstring)."""
 
     steps: int = REFERENCE_STEPS
     hidden: tuple[int, ...] = (256, 256, 256)
@@ -83,7 +92,8 @@ class Budget:
     inverse_seed: int = 12345
     normalize_observations: bool = False
     actor: str = "mlp"
-    actor_rate: str = "scaled"
+    actor_rate: str = "published"
+    warmstart: float = DEFAULT_WARMSTART
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden", tuple(self.hidden))
@@ -95,18 +105,23 @@ class Budget:
             raise ValueError(f"batch must be a positive integer, got {self.batch!r}")
         check_bool(self.normalize_observations, "normalize_observations")
         check_actor(self.actor, self.normalize_observations)
+        if not (isinstance(self.warmstart, int | float) and 0 <= self.warmstart < 1):
+            raise ValueError(f"warmstart must be a fraction of the steps in [0, 1), got "
+                             f"{self.warmstart!r}")
         if self.actor_rate not in ACTOR_RATES:
             raise ValueError(f"actor_rate must be one of {list(ACTOR_RATES)}, got "
                              f"{self.actor_rate!r}")
 
 
 def atac_config(budget: Budget, **overrides: Any) -> atac.ATACConfig:
-    """ATAC's settings shortened to ``budget.steps`` (module docstring: warm start 10 %,
-    actor rate × ``1e6 / steps``, or the published rate for ``budget.actor_rate ==
-    "published"``)."""
+    """ATAC's settings shortened to ``budget.steps`` (module docstring: warm start
+    ``budget.warmstart`` of the steps, 10 % by default, the
+    published actor rate, or that rate × ``1e6 / steps`` for ``budget.actor_rate ==
+    "scaled"``)."""
     scale = REFERENCE_STEPS / budget.steps if budget.actor_rate == "scaled" else 1.0
     kw = dict(hidden_sizes=budget.hidden, batch_size=budget.batch, num_steps=budget.steps,
-              warmstart_steps=budget.steps // 10, actor_lr=REFERENCE_ACTOR_LR * scale,
+              warmstart_steps=int(budget.steps * budget.warmstart + 1e-9),
+              actor_lr=REFERENCE_ACTOR_LR * scale,
               normalize_observations=budget.normalize_observations, actor=budget.actor)
     kw.update(overrides)
     return atac.ATACConfig(**kw)
@@ -244,8 +259,29 @@ def seed_keys(seeds: Sequence[int]) -> jax.Array:
     return jax.numpy.stack([jax.random.PRNGKey(int(s)) for s in seeds])
 
 
+def seed_beta_runs(seeds: Sequence[int], betas: Sequence[float] | None
+                   ) -> tuple[list[int], list[float] | None]:
+    """The runs of a seeds × β grid, seed-major: ``(run_seeds, run_betas)``; without ``betas``
+    one run per seed and ``None`` (every run at its config's β)."""
+    if betas is None:
+        return list(seeds), None
+    return [s for s in seeds for _ in betas], [float(b) for _ in seeds for b in betas]
+
+
+def init_runs(trainer: Trainer, keys: jax.Array, betas: Sequence[float] | None) -> Any:
+    """The vmapped initial state of the runs ``keys`` (one per run), each at its β from
+    ``betas`` (same length; ``None``: the config's β) — one program trains the whole grid."""
+    if betas is None:
+        return jax.jit(jax.vmap(trainer.init))(keys)
+    if len(betas) != len(keys):
+        raise ValueError(f"betas has {len(betas)} entries for {len(keys)} runs")
+    return jax.jit(jax.vmap(trainer.init))(keys, jax.numpy.asarray(betas, jax.numpy.float32))
+
+
 __all__ = [
     "ACTOR_RATES",
+    "BETA_LEARNERS",
+    "DEFAULT_WARMSTART",
     "LEARNERS",
     "NEEDS_SHARED",
     "TABLE_LEARNERS",
@@ -253,9 +289,11 @@ __all__ = [
     "applicable",
     "atac_config",
     "build",
+    "init_runs",
     "inverse_config",
     "inverse_labelled",
     "labelled_transitions",
+    "seed_beta_runs",
     "seed_keys",
     "train_chunked",
 ]

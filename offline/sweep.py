@@ -127,9 +127,10 @@ def done_cells(results: Path) -> set[str]:
 
 def add_learner_options(parser: Any) -> None:
     """The learner settings shared by the offline scripts: ``--normalize-observations``,
-    ``--actor`` (:data:`offline.residual_actor.ACTORS`) and ``--actor-rate``
-    (:data:`offline.experiment.ACTOR_RATES`). Non-default settings give result cells
-    their own key (:func:`setting_key`)."""
+    ``--actor`` (:data:`offline.residual_actor.ACTORS`), ``--warmstart`` and ``--actor-rate``
+    (:data:`offline.experiment.ACTOR_RATES`) — the :class:`offline.experiment.Budget` fields of
+    :func:`setting_fields`. Settings other than the original ones give result cells their own
+    key (:func:`setting_key`)."""
     parser.add_argument("--normalize-observations", action="store_true",
                         help="standardise observations with the dynamics data's statistics "
                              "(offline.learner.ObservationNormalizer; cells get their own key)")
@@ -137,31 +138,39 @@ def add_learner_options(parser: Any) -> None:
                         help="actor class of every learner: a tanh-Gaussian MLP, or the MLP "
                              "added to the chapter-6 NN-RESIDUAL RMP² base "
                              "(offline.residual_actor; cells get their own key)")
-    parser.add_argument("--actor-rate", choices=experiment.ACTOR_RATES, default="scaled",
-                        help="ATAC-type actor rate of a shortened run: the published 5e-7 x "
-                             "1e6/steps, or the published rate as is "
+    parser.add_argument("--warmstart", type=float, default=experiment.DEFAULT_WARMSTART,
+                        metavar="FRACTION",
+                        help="fraction of the steps spent in ATAC's BC warm start (published: "
+                             "100 k of 1 M; cells get their own key)")
+    parser.add_argument("--actor-rate", choices=experiment.ACTOR_RATES, default="published",
+                        help="ATAC-type actor rate of a shortened run: the published 5e-7 "
+                             "(default), or 5e-7 x 1e6/steps, the rule of the first tables "
                              "(offline.experiment.atac_config; cells get their own key)")
 
 
 def setting_key(args: Any) -> list:
-    """Cell-key entries of the non-default learner settings of ``args`` (empty for the
-    defaults, so results made before a setting existed keep their keys)."""
+    """Cell-key entries of the learner settings of ``args`` that differ from the ones our first
+    results were made with (MLP actor, raw observations, ``scaled`` actor rate), so results made
+    before a setting existed keep their keys whatever the current default."""
     key = ["normalize_observations"] if args.normalize_observations else []
     key += ["actor", args.actor] if args.actor != "mlp" else []
+    key += ["warmstart", args.warmstart] if args.warmstart != experiment.DEFAULT_WARMSTART else []
     return key + (["actor_rate", args.actor_rate] if args.actor_rate != "scaled" else [])
 
 
 def setting_fields(args: Any) -> dict[str, Any]:
-    """The learner settings of ``args`` as result-row fields."""
+    """The learner settings of ``args`` as result-row fields (also
+    :class:`offline.experiment.Budget` keyword arguments)."""
     return {"normalize_observations": bool(args.normalize_observations), "actor": args.actor,
-            "actor_rate": args.actor_rate}
+            "actor_rate": args.actor_rate, "warmstart": float(args.warmstart)}
 
 
 def same_setting(row: Mapping[str, Any], args: Any) -> bool:
     """Whether a result row was made with the learner settings of ``args`` (rows from before a
-    setting existed have its default)."""
+    setting existed have the value of that time: ``scaled`` for the actor rate)."""
     return (row.get("normalize_observations", False) == args.normalize_observations
             and row.get("actor", "mlp") == args.actor
+            and row.get("warmstart", experiment.DEFAULT_WARMSTART) == args.warmstart
             and row.get("actor_rate", "scaled") == args.actor_rate)
 
 

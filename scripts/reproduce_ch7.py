@@ -114,8 +114,7 @@ def train_stage(args) -> None:
     results = args.out / "results.jsonl"
     done = done_cells(results)
     budget = experiment.Budget(steps=args.steps, hidden=tuple(args.hidden),
-                               normalize_observations=args.normalize_observations,
-                               actor=args.actor, actor_rate=args.actor_rate)
+                               **setting_fields(args))
     keys = experiment.seed_keys(range(args.seeds))
     for env in args.envs:
         env_obj = collect.make_env(env)

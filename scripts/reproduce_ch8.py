@@ -282,8 +282,7 @@ def train_stage(args) -> None:
     results = args.out / "results.jsonl"
     done = sweep.done_cells(results)
     budget = experiment.Budget(steps=args.steps, hidden=tuple(args.hidden), batch=args.batch,
-                               normalize_observations=args.normalize_observations,
-                               actor=args.actor, actor_rate=args.actor_rate)
+                               **sweep.setting_fields(args))
     evaluation = None
     for name in args.datasets:
         _, cut, filtered = split_name(name)

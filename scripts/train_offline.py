@@ -6,6 +6,7 @@ in the MJX environment.
     python scripts/train_offline.py --learner MAHALO --env three_link/env3 --scenario ILfO
     python scripts/train_offline.py --learner IQL --dataset data/env3_mixed.npz --steps 100000
     python scripts/train_offline.py ... --resume          # continue from the last checkpoint
+    python scripts/train_offline.py --learner Oracle --betas 0.25 1 4 16   # seeds × β, one program
 
 Data: ``--dataset`` (a file written by ``scripts/collect.py``; its environment is read from the
 file) or, without it, a ``--recipe`` dataset of ``--scale`` episodes per source collected on
@@ -19,8 +20,10 @@ Writes to ``--out``: ``metrics.csv`` (per chunk: steps, seed, every training met
 another learner, scenario or configuration, ``--normalize-observations`` and ``--actor``
 included), and
 ``result.json`` (the configuration, wall times and the evaluation: mean return, normalised
-score — random 0, expert 100 —, safe % and success % per seed). A progress bar shows steps,
-losses and the ETA.
+score — random 0, expert 100 —, safe % and success % per run). A progress bar shows steps,
+losses and the ETA. ``--betas`` (ATAC-type learners, :data:`offline.experiment.BETA_LEARNERS`)
+trains every seed at every Bellman weight β in one vmapped program (runs seed-major; ``beta`` in
+``metrics.csv`` and ``result.json``) — ATAC's per-dataset selection of β.
 """
 
 from __future__ import annotations
@@ -58,6 +61,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--recipe", default="mixed", help="recipe collected without --dataset")
     p.add_argument("--scale", type=int, default=8, help="episodes per source when collecting")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    p.add_argument("--betas", type=float, nargs="+", default=None,
+                   help="Bellman weights β to train at, every seed at every β in one program "
+                        "(ATAC-type learners; default: each learner's own β)")
     p.add_argument("--steps", type=int, default=2000, help="gradient steps")
     p.add_argument("--hidden", type=int, nargs="+", default=[256, 256, 256])
     p.add_argument("--batch", type=int, default=256)
@@ -78,6 +84,14 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
             p.error(f"dataset file {path} does not exist")
     if args.expert is not None and args.scenario is None:
         p.error("--expert is only used with --scenario")
+    if args.betas is not None:
+        from offline.experiment import BETA_LEARNERS
+
+        if args.learner not in BETA_LEARNERS:
+            p.error(f"--betas needs a learner with ATAC's Bellman weight {list(BETA_LEARNERS)}, "
+                    f"got {args.learner}")
+        if any(not (np.isfinite(b) and b >= 0) for b in args.betas):
+            p.error(f"--betas must be finite numbers >= 0, got {args.betas}")
     return args
 
 
@@ -119,15 +133,16 @@ def main(argv: Sequence[str] | None = None) -> dict:
     from agents.training import ProgressBar
     from offline import evaluate, experiment
     from offline.learner import actor_params
+    from offline.sweep import setting_fields
 
     args = parse_args(argv)
     t_start = time.perf_counter()
     env, dyn, rd = load_data(args)
     budget = experiment.Budget(steps=args.steps, hidden=tuple(args.hidden), batch=args.batch,
-                               normalize_observations=args.normalize_observations,
-                               actor=args.actor, actor_rate=args.actor_rate)
+                               **setting_fields(args))
     trainer = experiment.build(args.learner, dyn, rd, budget, args.scenario)
-    keys = experiment.seed_keys(args.seeds)
+    run_seeds, run_betas = experiment.seed_beta_runs(args.seeds, args.betas)
+    keys = experiment.seed_keys(run_seeds)
     meta = {"learner": args.learner, "scenario": args.scenario, "env": env,
             "seeds": list(args.seeds), "steps": args.steps, "hidden": list(args.hidden),
             "batch": args.batch, "remove_terminals": args.remove_terminals,
@@ -138,10 +153,14 @@ def main(argv: Sequence[str] | None = None) -> dict:
         meta["actor"] = args.actor
     if args.actor_rate != "scaled":
         meta["actor_rate"] = args.actor_rate
+    if args.warmstart != experiment.DEFAULT_WARMSTART:
+        meta["warmstart"] = args.warmstart
+    if run_betas is not None:  # one entry per run, seed-major
+        meta["run_seeds"], meta["betas"] = run_seeds, run_betas
     ckpt_dir = args.out / "checkpoints"
     state, start = None, 0
     if args.resume and checkpoint.latest_step(ckpt_dir) is not None:
-        template = jax.eval_shape(jax.vmap(trainer.init), keys)
+        template = jax.eval_shape(lambda k: experiment.init_runs(trainer, k, run_betas), keys)
         try:
             state, saved = checkpoint.restore(ckpt_dir, template, expected=meta)
         except checkpoint.IncompatibleCheckpointError as err:
@@ -156,15 +175,20 @@ def main(argv: Sequence[str] | None = None) -> dict:
     if start == 0 and csv_path.exists():
         csv_path.unlink()
     t_train = time.perf_counter()
+    if state is None:
+        state = experiment.init_runs(trainer, keys, run_betas)
+    labels = ["seed"] + (["beta"] if run_betas else [])
+    runs = list(zip(run_seeds, run_betas or [None] * len(run_seeds), strict=True))
 
     def on_chunk(st, means, done):
         new = not csv_path.exists()
         with open(csv_path, "a", newline="") as f:
             w = csv.writer(f)
             if new:
-                w.writerow(["steps", "seed", *means])
-            for i, seed in enumerate(args.seeds):
-                w.writerow([done, seed, *(f"{float(v[i]):.6g}" for v in means.values())])
+                w.writerow(["steps", *labels, *means])
+            for i, run in enumerate(runs):
+                w.writerow([done, *run[:len(labels)],
+                            *(f"{float(v[i]):.6g}" for v in means.values())])
         checkpoint.save(ckpt_dir, done, st, meta)
         if bar is not None:
             losses = [f"{k} {float(np.mean(v)):.3g}" for k, v in means.items() if "loss" in k]
@@ -185,10 +209,15 @@ def main(argv: Sequence[str] | None = None) -> dict:
     tmp.write_text(json.dumps(result, indent=1) + "\n")
     tmp.replace(args.out / "result.json")
     score = np.asarray(result["normalized_score"])
-    print(f"{args.learner} on {env} ({args.scenario or 'dataset rewards'}), seeds {args.seeds}: "
-          f"normalised score {score.mean():.1f} (per seed {np.round(score, 1).tolist()}), "
-          f"safe {np.mean(result['safe_pct']):.1f} %, success "
-          f"{np.mean(result['success_pct']):.1f} %; train {train_s:.0f} s → {args.out}")
+    for beta in args.betas or [None]:
+        pick = [i for i, run in enumerate(runs) if run[1] == beta]
+        at = "" if beta is None else f" at β {beta:g}"
+        print(f"{args.learner} on {env} ({args.scenario or 'dataset rewards'}), seeds "
+              f"{args.seeds}{at}: normalised score {score[pick].mean():.1f} (per seed "
+              f"{np.round(score[pick], 1).tolist()}), safe "
+              f"{np.mean(np.asarray(result['safe_pct'])[pick]):.1f} %, success "
+              f"{np.mean(np.asarray(result['success_pct'])[pick]):.1f} %")
+    print(f"train {train_s:.0f} s → {args.out}")
     return result
 
 

@@ -44,12 +44,21 @@ def test_applicability_matrix():
         experiment.applicable("BC", "IRL")
 
 
-def test_shortened_atac_schedule_keeps_the_actor_budget():
+def test_shortened_atac_schedule_keeps_the_published_rates_or_the_actor_budget():
     for steps in (10_000, 200_000, 1_000_000):
         cfg = experiment.atac_config(experiment.Budget(steps=steps))
         assert cfg.num_steps == steps and cfg.warmstart_steps == steps // 10
-        assert cfg.actor_lr * steps == pytest.approx(5e-7 * 1_000_000)
-        assert cfg.critic_lr == 5e-4 and cfg.batch_size == 256
+        assert cfg.actor_lr == 5e-7 and cfg.critic_lr == 5e-4 and cfg.batch_size == 256
+        scaled = experiment.atac_config(experiment.Budget(steps=steps, actor_rate="scaled"))
+        assert scaled.actor_lr * steps == pytest.approx(5e-7 * 1_000_000)
+        assert scaled.warmstart_steps == steps // 10 and scaled.critic_lr == 5e-4
+        longer = experiment.atac_config(experiment.Budget(steps=steps, warmstart=0.75))
+        assert longer.warmstart_steps == steps * 3 // 4 and longer.actor_lr == 5e-7
+    assert experiment.atac_config(experiment.Budget(steps=15)).warmstart_steps == 1
+    assert experiment.atac_config(experiment.Budget(steps=70)).warmstart_steps == 7
+    for bad in (1.0, -0.1, "half"):
+        with pytest.raises(ValueError, match="warmstart must be a fraction"):
+            experiment.Budget(steps=100, warmstart=bad)
     with pytest.raises(ValueError, match="steps"):
         experiment.Budget(steps=3)
 
@@ -99,6 +108,31 @@ def test_chunked_training_equals_one_call_and_reports_every_chunk(data):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
 
 
+def test_beta_grid_in_one_program_equals_runs_at_each_beta(data):
+    """Seeds × β vmapped in one program: every run equals ATAC built at that β and trained
+    alone with that seed; the β really changes the run."""
+    from offline import plfo_baselines
+
+    mixed, _ = data
+    budget = experiment.Budget(steps=10, hidden=(8, 8), batch=8, actor_rate="scaled")
+    run_seeds, run_betas = experiment.seed_beta_runs([0, 1], [0.5, 4.0])
+    assert run_seeds == [0, 0, 1, 1] and run_betas == [0.5, 4.0, 0.5, 4.0]
+    assert experiment.seed_beta_runs([3], None) == ([3], None)
+    trainer = experiment.build("Oracle", mixed, None, budget)
+    keys = experiment.seed_keys(run_seeds)
+    state, _ = experiment.train_chunked(trainer, keys, 5,
+                                        state=experiment.init_runs(trainer, keys, run_betas))
+    np.testing.assert_allclose(state.beta, run_betas)
+    alone = plfo_baselines.make_train_oracle(mixed, experiment.atac_config(budget, beta=4.0))
+    final, _ = jax.jit(alone.train)(jax.random.PRNGKey(1))
+    jax.tree.map(lambda a, b: np.testing.assert_allclose(a[3], b, rtol=1e-5, atol=1e-6),
+                 state.params["critic"], final.params["critic"])
+    critic = np.asarray(jax.tree.leaves(state.params["critic"])[-1])
+    assert not np.allclose(critic[2], critic[3])  # same seed, other β
+    with pytest.raises(ValueError, match="betas has 3 entries for 4 runs"):
+        experiment.init_runs(trainer, keys, [1.0, 2.0, 3.0])
+
+
 def test_ch7_table_bolds_entries_within_90_percent_of_the_best_non_oracle(tmp_path):
     from scripts import reproduce_ch7
 
@@ -106,7 +140,8 @@ def test_ch7_table_bolds_entries_within_90_percent_of_the_best_non_oracle(tmp_pa
     with open(tmp_path / "results.jsonl", "w") as f:
         for learner, s in scores.items():
             f.write(json.dumps({"env": "e", "scenario": "ILfO", "learner": learner,
-                                "normalized_score": s, "safe_pct": [100, 100]}) + "\n")
+                                "actor_rate": "published", "normalized_score": s,
+                                "safe_pct": [100, 100]}) + "\n")
     args = reproduce_ch7.parse_args(["--stage", "table", "--out", str(tmp_path)])
     summary = reproduce_ch7.table_stage(args)
     table = (tmp_path / "table.md").read_text()
@@ -122,7 +157,7 @@ def test_ch7_and_ch8_keep_standardised_observation_runs_apart(tmp_path):
     the ch7 table only reads rows of its own setting (refusing when there are none)."""
     from scripts import reproduce_ch7, reproduce_ch8
 
-    base = ["--out", str(tmp_path)]
+    base = ["--out", str(tmp_path), "--actor-rate", "scaled"]  # the settings of old results
     off, on = (reproduce_ch7.parse_args(base + extra)
                for extra in ([], ["--normalize-observations"]))
     assert reproduce_ch7._cell_key("e", "IL", "BC", off) != reproduce_ch7._cell_key(
@@ -148,7 +183,9 @@ def test_train_offline_refuses_bad_arguments(tmp_path, capsys):
                       (["--learner", "BC", "--dataset", str(tmp_path / "nope.npz")],
                        "does not exist"),
                       (["--learner", "BC", "--steps", "0"], "positive integer"),
-                      (["--learner", "BC", "--expert", str(tmp_path)], "only used with")):
+                      (["--learner", "BC", "--expert", str(tmp_path)], "only used with"),
+                      (["--learner", "BC", "--betas", "1"], "Bellman weight"),
+                      (["--learner", "ATAC", "--betas", "1", "-2"], "finite numbers >= 0")):
         with pytest.raises(SystemExit):
             train_offline.parse_args(argv)
         assert msg in capsys.readouterr().err

@@ -151,23 +151,30 @@ def test_scripts_give_non_default_actors_their_own_cells():
 
     p = argparse.ArgumentParser()
     sweep.add_learner_options(p)
-    default, residual = p.parse_args([]), p.parse_args(["--actor", "nn_residual"])
-    assert sweep.setting_key(default) == []
+    default = p.parse_args([])
+    legacy = p.parse_args(["--actor-rate", "scaled"])  # the settings of our first results
+    residual = p.parse_args(["--actor", "nn_residual", "--actor-rate", "scaled"])
+    assert default.actor == "mlp" and default.actor_rate == "published"
+    assert sweep.setting_key(legacy) == []
+    assert sweep.setting_key(default) == ["actor_rate", "published"]
     assert sweep.setting_key(residual) == ["actor", "nn_residual"]
-    old_row = {"normalize_observations": False}
-    assert sweep.same_setting(old_row, default) and not sweep.same_setting(old_row, residual)
-    assert sweep.same_setting(sweep.setting_fields(residual), residual)
+    old_row = {"normalize_observations": False}  # written before actor and actor_rate existed
+    assert sweep.same_setting(old_row, legacy)
+    assert not sweep.same_setting(old_row, residual) and not sweep.same_setting(old_row, default)
+    longer = p.parse_args(["--warmstart", "0.5"])
+    assert sweep.setting_key(longer) == ["warmstart", 0.5, "actor_rate", "published"]
+    assert experiment.Budget(steps=100, **sweep.setting_fields(longer)).warmstart == 0.5
+    for args in (default, legacy, residual, longer):
+        assert sweep.same_setting(sweep.setting_fields(args), args)
+    assert not sweep.same_setting(sweep.setting_fields(default), longer)
     with pytest.raises(SystemExit):
         p.parse_args(["--actor", "rmp"])
-    published = p.parse_args(["--actor-rate", "published"])
-    assert sweep.setting_key(published) == ["actor_rate", "published"]
-    assert sweep.same_setting(old_row, default) and not sweep.same_setting(old_row, published)
 
 
 def test_actor_rate_rule_of_shortened_atac_runs():
-    # Scaled (default): 5e-7 × 1e6 / steps keeps the published rate × steps; published: 5e-7.
-    scaled = experiment.atac_config(experiment.Budget(steps=20_000))
-    published = experiment.atac_config(experiment.Budget(steps=20_000, actor_rate="published"))
+    # Published (default): 5e-7; scaled: 5e-7 × 1e6 / steps keeps the published rate × steps.
+    scaled = experiment.atac_config(experiment.Budget(steps=20_000, actor_rate="scaled"))
+    published = experiment.atac_config(experiment.Budget(steps=20_000))
     assert scaled.actor_lr == pytest.approx(2.5e-5) and published.actor_lr == 5e-7
     assert scaled.warmstart_steps == published.warmstart_steps == 2_000
     assert scaled.critic_lr == published.critic_lr
