@@ -238,7 +238,7 @@ def train_chunked(trainer: Trainer, keys: jax.Array, chunk: int,
     if not (isinstance(chunk, int) and chunk >= 1):
         raise ValueError(f"chunk must be a positive integer, got {chunk!r}")
     if state is None:
-        state = jax.jit(jax.vmap(trainer.init))(keys)
+        state = init_runs(trainer, keys, None)
     run = jax.jit(jax.vmap(trainer.run, in_axes=(0, None)), static_argnums=1)
     history: dict[str, list] = {}
     done = start

@@ -148,30 +148,38 @@ def add_learner_options(parser: Any) -> None:
                              "(offline.experiment.atac_config; cells get their own key)")
 
 
-def setting_key(args: Any) -> list:
-    """Cell-key entries of the learner settings of ``args`` that differ from the ones our first
-    results were made with (MLP actor, raw observations, ``scaled`` actor rate), so results made
-    before a setting existed keep their keys whatever the current default."""
-    key = ["normalize_observations"] if args.normalize_observations else []
-    key += ["actor", args.actor] if args.actor != "mlp" else []
-    key += ["warmstart", args.warmstart] if args.warmstart != experiment.DEFAULT_WARMSTART else []
-    return key + (["actor_rate", args.actor_rate] if args.actor_rate != "scaled" else [])
+#: The learner settings our first results were made with: result rows and checkpoints from
+#: before a setting existed have these values, and cell keys name only the settings that differ.
+ORIGINAL_SETTINGS = {"normalize_observations": False, "actor": "mlp",
+                     "warmstart": experiment.DEFAULT_WARMSTART, "actor_rate": "scaled"}
 
 
 def setting_fields(args: Any) -> dict[str, Any]:
     """The learner settings of ``args`` as result-row fields (also
-    :class:`offline.experiment.Budget` keyword arguments)."""
+    :class:`offline.experiment.Budget` keyword arguments), in :data:`ORIGINAL_SETTINGS` order."""
     return {"normalize_observations": bool(args.normalize_observations), "actor": args.actor,
-            "actor_rate": args.actor_rate, "warmstart": float(args.warmstart)}
+            "warmstart": float(args.warmstart), "actor_rate": args.actor_rate}
+
+
+def setting_changes(args: Any) -> dict[str, Any]:
+    """The learner settings of ``args`` that differ from :data:`ORIGINAL_SETTINGS`."""
+    return {k: v for k, v in setting_fields(args).items() if v != ORIGINAL_SETTINGS[k]}
+
+
+def setting_key(args: Any) -> list:
+    """Cell-key entries of :func:`setting_changes` (a flag for ``normalize_observations``, name
+    and value for the others), so results made before a setting existed keep their keys
+    whatever the current default."""
+    key: list = []
+    for k, v in setting_changes(args).items():
+        key += [k] if k == "normalize_observations" else [k, v]
+    return key
 
 
 def same_setting(row: Mapping[str, Any], args: Any) -> bool:
     """Whether a result row was made with the learner settings of ``args`` (rows from before a
-    setting existed have the value of that time: ``scaled`` for the actor rate)."""
-    return (row.get("normalize_observations", False) == args.normalize_observations
-            and row.get("actor", "mlp") == args.actor
-            and row.get("warmstart", experiment.DEFAULT_WARMSTART) == args.warmstart
-            and row.get("actor_rate", "scaled") == args.actor_rate)
+    setting existed have its :data:`ORIGINAL_SETTINGS` value)."""
+    return all(row.get(k, ORIGINAL_SETTINGS[k]) == v for k, v in setting_fields(args).items())
 
 
 def apply_preset(parser: Any, args: Any, preset: Mapping[str, Any],
@@ -234,6 +242,7 @@ def run_stages(args: Any, stages: Mapping[str, Callable[[Any], Any]], header: st
 
 
 __all__ = [
+    "ORIGINAL_SETTINGS",
     "REWARD_LEARNERS",
     "RewardBatchedState",
     "add_learner_options",
@@ -248,6 +257,7 @@ __all__ = [
     "run_actor_params",
     "run_stages",
     "same_setting",
+    "setting_changes",
     "setting_fields",
     "setting_key",
 ]

@@ -167,7 +167,7 @@ def _fmt(mean: float, se: float, bold: bool) -> str:
 def table_stage(args) -> dict:
     """Write and print the Table 7.3-style table; return the per-cell summary."""
     from offline.experiment import TABLE_LEARNERS
-    from offline.sweep import same_setting
+    from offline.sweep import same_setting, setting_fields
 
     path = args.out / "results.jsonl"
     if not path.exists():
@@ -175,8 +175,8 @@ def table_stage(args) -> dict:
     rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
     rows = [r for r in rows if same_setting(r, args)]  # one table per learner setting
     if not rows:
-        raise SystemExit(f"no results with normalize_observations={args.normalize_observations} "
-                         f"and actor={args.actor} in {path}")
+        settings = ", ".join(f"{k}={v}" for k, v in setting_fields(args).items())
+        raise SystemExit(f"no results with {settings} in {path}")
     cells: dict = {}
     for r in rows:
         s = np.asarray(r["normalized_score"], np.float64)

@@ -133,7 +133,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     from agents.training import ProgressBar
     from offline import evaluate, experiment
     from offline.learner import actor_params
-    from offline.sweep import setting_fields
+    from offline.sweep import setting_changes, setting_fields
 
     args = parse_args(argv)
     t_start = time.perf_counter()
@@ -147,14 +147,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
             "seeds": list(args.seeds), "steps": args.steps, "hidden": list(args.hidden),
             "batch": args.batch, "remove_terminals": args.remove_terminals,
             "dynamics_transitions": int(dyn.size)}
-    if args.normalize_observations:  # only when on: older checkpoints stay resumable
-        meta["normalize_observations"] = True
-    if args.actor != "mlp":
-        meta["actor"] = args.actor
-    if args.actor_rate != "scaled":
-        meta["actor_rate"] = args.actor_rate
-    if args.warmstart != experiment.DEFAULT_WARMSTART:
-        meta["warmstart"] = args.warmstart
+    meta.update(setting_changes(args))  # only changed settings: old checkpoints resume
     if run_betas is not None:  # one entry per run, seed-major
         meta["run_seeds"], meta["betas"] = run_seeds, run_betas
     ckpt_dir = args.out / "checkpoints"
