@@ -65,7 +65,7 @@ from offline.learner import (
     scan_steps,
 )
 from offline.networks import FROBENIUS_BOUND, QEnsemble, polyak, project_frobenius
-from offline.residual_actor import check_actor, make_actor
+from offline.residual_actor import apply_actor, check_actor, dataset_bases, make_actor
 
 PESSIMISM = ("relative", "absolute")
 
@@ -296,6 +296,7 @@ def make_core(dynamics: odata.Dataset, config: ATACConfig, reward: RewardModel, 
     log_alpha0 = jnp.asarray(math.log(config.init_temperature), jnp.float32)
     hidden = config.hidden_sizes
     actor = make_actor(config.actor, dynamics.metadata, act_size, hidden)
+    bases = dataset_bases(actor, ds.observations, ds.next_observations)
     critic = QEnsemble(config.num_critics, hidden_sizes=hidden)
     actor_adam = optax.scale_by_adam()
     critic_opt = optax.adam(config.critic_lr)
@@ -334,11 +335,12 @@ def make_core(dynamics: odata.Dataset, config: ATACConfig, reward: RewardModel, 
             lambda f, c: jnp.where(switch, f, c), fresh, current)
 
         k_batch, k_next, k_pi, k_reward = jax.random.split(key, 4)
-        batch = odata.sample(ds, k_batch, bsz)
+        batch, base = odata.sample_with(ds, bases, k_batch, bsz)
         p = state.params
-        a_next, _ = actor.apply(p["actor"], batch.next_observations).sample(k_next)
+        a_next, _ = apply_actor(actor, p["actor"], batch.next_observations,
+                                base.next_observations).sample(k_next)
         a_next = jax.lax.stop_gradient(a_next)
-        pi = actor.apply(p["actor"], batch.observations)
+        pi = apply_actor(actor, p["actor"], batch.observations, base.observations)
         a_pi, logp_pi = pi.sample(k_pi)
         q_next_target = jnp.min(critic.apply(state.target_critic, batch.next_observations,
                                              a_next), axis=-1)
@@ -391,7 +393,7 @@ def make_core(dynamics: odata.Dataset, config: ATACConfig, reward: RewardModel, 
         alpha = jnp.exp(new_params["log_alpha"])
 
         def actor_loss(actor_params):
-            dist = actor.apply(actor_params, batch.observations)
+            dist = apply_actor(actor, actor_params, batch.observations, base.observations)
 
             def bc():
                 return -jnp.mean(dist.log_prob(batch.actions))

@@ -59,7 +59,7 @@ from offline.learner import (
     policy_act,
     scan_steps,
 )
-from offline.residual_actor import check_actor, make_actor
+from offline.residual_actor import ActorBases, apply_actor, check_actor, dataset_bases, make_actor
 from offline.scenarios import RewardData, validate_reward_data
 
 #: Values of :attr:`BCConfig.data`.
@@ -128,24 +128,27 @@ class BCOState(NamedTuple):
 
 
 def bc_loss(policy: nn.Module, actor_params: Any, observations: jax.Array,
-            actions: jax.Array) -> tuple[jax.Array, dict]:
+            actions: jax.Array, base: jax.Array | None = None) -> tuple[jax.Array, dict]:
     """``(−mean log π(a|s), metrics)`` for normalised actions ``a`` in ``[−1, 1]`` (module
-    docstring); metrics ``bc_loss`` and ``action_mse`` (mode vs data, normalised units)."""
-    dist = policy.apply(actor_params, observations)
+    docstring); metrics ``bc_loss`` and ``action_mse`` (mode vs data, normalised units).
+    ``base``: the residual actor's precomputed RMP² base at ``observations``
+    (:func:`offline.residual_actor.dataset_bases`)."""
+    dist = apply_actor(policy, actor_params, observations, base)
     loss = -jnp.mean(dist.log_prob(actions))
     mse = jnp.mean(jnp.sum(jnp.square(dist.mode() - actions), axis=-1))
     return loss, {"bc_loss": loss, "action_mse": mse}
 
 
 def _bc_update(policy: nn.Module, optimizer: optax.GradientTransformation,
-               batch_size: int, data_of: Callable[[Any], odata.Dataset]):
-    """One BC step on a minibatch of ``data_of(state)`` (normalised actions)."""
+               batch_size: int, data_of: Callable[[Any], odata.Dataset], bases: ActorBases):
+    """One BC step on a minibatch of ``data_of(state)`` (normalised actions; its observations
+    are the same in every state, and ``bases`` holds the actor's base at them)."""
 
     def update(state, key):
-        batch = odata.sample(data_of(state), key, batch_size)
+        batch, base = odata.sample_with(data_of(state), bases, key, batch_size)
 
         def loss_fn(actor):
-            return bc_loss(policy, actor, batch.observations, batch.actions)
+            return bc_loss(policy, actor, batch.observations, batch.actions, base.observations)
 
         (_, metrics), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params["actor"])
         actor, opt_state = adam_step(optimizer, state.params["actor"], state.opt_state, grads)
@@ -190,7 +193,8 @@ def _make_bc(dynamics: odata.Dataset, config: BCConfig,
         return BCState(params, optimizer.init(params["actor"]), k_run,
                        jnp.zeros((), jnp.int32))
 
-    update = _bc_update(policy, optimizer, config.batch_size, lambda state: data)
+    update = _bc_update(policy, optimizer, config.batch_size, lambda state: data,
+                        dataset_bases(policy, data.observations))
 
     def run(state: BCState, n: int):
         return scan_steps(update, state, n)
@@ -233,7 +237,8 @@ def _make_bco(dynamics: odata.Dataset, config: BCOConfig,
                         jnp.zeros((), jnp.int32), labels)
 
     update = _bc_update(policy, optimizer, bc.batch_size,
-                        lambda state: template.replace(actions=state.labels))
+                        lambda state: template.replace(actions=state.labels),
+                        dataset_bases(policy, template.observations))
 
     def run(state: BCOState, n: int):
         return scan_steps(update, state, n)

@@ -57,7 +57,7 @@ from offline.learner import (
     scan_steps,
 )
 from offline.networks import QEnsemble, polyak
-from offline.residual_actor import check_actor, make_actor
+from offline.residual_actor import ActorBases, apply_actor, check_actor, dataset_bases, make_actor
 from offline.scenarios import RewardData
 
 
@@ -116,18 +116,22 @@ class CQLState(NamedTuple):
 
 
 def penalty_actions(policy: nn.Module, actor_params: Any, obs: jax.Array,
-                    next_obs: jax.Array, key: jax.Array, num_samples: int
-                    ) -> tuple[jax.Array, jax.Array]:
+                    next_obs: jax.Array, key: jax.Array, num_samples: int,
+                    base: ActorBases | None = None) -> tuple[jax.Array, jax.Array]:
     """The importance samples of the CQL(H) log-sum-exp: ``(actions (3K, B, A), log_density
     (3K, B))`` — ``K`` uniform actions on ``[−1, 1]^A``, ``K`` from ``π(·|s)`` and ``K`` from
-    ``π(·|s')``, with their log-densities; no gradient flows through them."""
+    ``π(·|s')``, with their log-densities; no gradient flows through them. ``base``: the
+    residual actor's precomputed RMP² base at ``obs`` / ``next_obs`` (default: evaluated here)."""
+    base = ActorBases() if base is None else base
     k_unif, k_cur, k_next = jax.random.split(key, 3)
     batch = obs.shape[0]
     action_size = policy.action_size
     uniform = jax.random.uniform(k_unif, (num_samples, batch, action_size), obs.dtype, -1.0, 1.0)
     log_uniform = jnp.full((num_samples, batch), -action_size * math.log(2.0), obs.dtype)
-    a_cur, logp_cur = policy.apply(actor_params, obs).sample(k_cur, (num_samples,))
-    a_next, logp_next = policy.apply(actor_params, next_obs).sample(k_next, (num_samples,))
+    a_cur, logp_cur = apply_actor(policy, actor_params, obs, base.observations).sample(
+        k_cur, (num_samples,))
+    a_next, logp_next = apply_actor(policy, actor_params, next_obs, base.next_observations
+                                    ).sample(k_next, (num_samples,))
     actions = jnp.concatenate([uniform, a_cur, a_next])
     log_density = jnp.concatenate([log_uniform, logp_cur, logp_next])
     return jax.lax.stop_gradient(actions), jax.lax.stop_gradient(log_density)
@@ -167,6 +171,7 @@ def make_train(dynamics: odata.Dataset, config: CQLConfig = CQLConfig(), *,
     action_size = dynamics.action_size
     target_entropy = -float(action_size) if c.target_entropy is None else c.target_entropy
     policy = make_actor(c.actor, dynamics.metadata, action_size, c.hidden_sizes, c.activation)
+    bases = dataset_bases(policy, data.observations, data.next_observations)
     critic = QEnsemble(c.num_critics, c.hidden_sizes, c.activation)
     opts = {"actor": optax.adam(c.actor_lr), "critic": optax.adam(c.critic_lr),
             "log_alpha": optax.adam(c.alpha_lr)}
@@ -183,18 +188,19 @@ def make_train(dynamics: odata.Dataset, config: CQLConfig = CQLConfig(), *,
 
     def update(state: CQLState, key: jax.Array):
         k_batch, k_pi, k_next, k_pen = jax.random.split(key, 4)
-        b = odata.sample(data, k_batch, c.batch_size)
+        b, base = odata.sample_with(data, bases, k_batch, c.batch_size)
         p = state.params
         alpha = jnp.exp(p["log_alpha"])
 
         # Bellman target
-        a_next, logp_next = policy.apply(p["actor"], b.next_observations).sample(k_next)
+        a_next, logp_next = apply_actor(policy, p["actor"], b.next_observations,
+                                        base.next_observations).sample(k_next)
         q_next = jnp.min(critic.apply(state.target["critic"], b.next_observations, a_next), -1)
         if c.backup_entropy:
             q_next = q_next - alpha * logp_next
         y = jax.lax.stop_gradient(b.rewards + c.discount * (1.0 - b.terminals) * q_next)
         sampled, log_density = penalty_actions(policy, p["actor"], b.observations,
-                                               b.next_observations, k_pen, c.num_samples)
+                                               b.next_observations, k_pen, c.num_samples, base)
 
         def critic_loss(cp):
             q = critic.apply(cp, b.observations, b.actions)  # (B, C)
@@ -205,7 +211,7 @@ def make_train(dynamics: odata.Dataset, config: CQLConfig = CQLConfig(), *,
             return loss, (jnp.sum(td), jnp.mean(penalty), jnp.mean(q))
 
         def actor_loss(ap):
-            a_pi, logp = policy.apply(ap, b.observations).sample(k_pi)
+            a_pi, logp = apply_actor(policy, ap, b.observations, base.observations).sample(k_pi)
             q_pi = jnp.min(critic.apply(p["critic"], b.observations, a_pi), -1)
             return jnp.mean(alpha * logp - q_pi), logp
 

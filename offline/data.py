@@ -590,13 +590,25 @@ def sample(dataset: Dataset, key: jax.Array, batch_size: int) -> Dataset:
     or a closure); the result is a :class:`Dataset` of ``batch_size`` rows with the same
     metadata. Indices come from ``jax.random.randint(key, (batch_size,), 0, N)``.
     """
+    return sample_with(dataset, None, key, batch_size)[0]
+
+
+def sample_with(dataset: Dataset, rows: Any, key: jax.Array, batch_size: int
+                ) -> tuple[Dataset, Any]:
+    """:func:`sample` together with the same rows of ``rows``, a pytree of per-transition arrays
+    (leading size ``N``, e.g. values precomputed for every transition; ``None`` leaves stay
+    ``None``). The minibatch is the one :func:`sample` draws with ``key``."""
     if not isinstance(batch_size, int | np.integer) or batch_size <= 0:
         raise ValueError(f"batch_size must be a positive (static) integer, got {batch_size!r}")
     n = dataset.rewards.shape[0]
     if n == 0:
         raise ValueError("cannot sample from an empty dataset (N = 0)")
+    bad = [x.shape for x in jax.tree.leaves(rows) if x.shape[:1] != (n,)]
+    if bad:
+        raise ValueError(f"rows must have one entry per transition ({n}), got shapes {bad}")
     idx = jax.random.randint(key, (int(batch_size),), 0, n)
-    return jax.tree.map(lambda x: jnp.take(x, idx, axis=0), dataset)
+    take = lambda x: jnp.take(x, idx, axis=0)  # noqa: E731
+    return jax.tree.map(take, dataset), jax.tree.map(take, rows)
 
 
 def relabel_rewards(dataset: Dataset, fn: str | Callable[[Dataset], Any] | Any, *,
@@ -810,6 +822,7 @@ __all__ = [
     "relabel_rewards",
     "renumber_episodes",
     "sample",
+    "sample_with",
     "save",
     "split_by_episode",
     "take_rows",

@@ -49,7 +49,7 @@ from offline.learner import (
     scan_steps,
 )
 from offline.networks import QEnsemble, StateNet, polyak
-from offline.residual_actor import check_actor, make_actor
+from offline.residual_actor import apply_actor, check_actor, dataset_bases, make_actor
 from offline.scenarios import RewardData
 
 
@@ -127,6 +127,7 @@ def make_train(dynamics: odata.Dataset, config: IQLConfig = IQLConfig(), *,
     c = config
     policy = make_actor(c.actor, dynamics.metadata, dynamics.action_size, c.hidden_sizes,
                         c.activation)
+    bases = dataset_bases(policy, data.observations)
     critic = QEnsemble(c.num_critics, c.hidden_sizes, c.activation)
     value = StateNet(1, c.hidden_sizes, c.activation)
     opts = {"actor": optax.adam(c.actor_lr), "critic": optax.adam(c.critic_lr),
@@ -143,7 +144,7 @@ def make_train(dynamics: odata.Dataset, config: IQLConfig = IQLConfig(), *,
                         jnp.zeros((), jnp.int32), jnp.asarray(beta, jnp.float32))
 
     def update(state: IQLState, key: jax.Array):
-        b = odata.sample(data, key, c.batch_size)
+        b, base = odata.sample_with(data, bases, key, c.batch_size)
         p, opt_state = dict(state.params), dict(state.opt_state)
         q_target = jnp.min(critic.apply(state.target["critic"], b.observations, b.actions), -1)
 
@@ -159,7 +160,7 @@ def make_train(dynamics: odata.Dataset, config: IQLConfig = IQLConfig(), *,
                               c.max_weight)
 
         def actor_loss(ap):
-            logp = policy.apply(ap, b.observations).log_prob(b.actions)
+            logp = apply_actor(policy, ap, b.observations, base.observations).log_prob(b.actions)
             return -jnp.mean(weights * logp)
 
         l_actor, grads = jax.value_and_grad(actor_loss)(p["actor"])

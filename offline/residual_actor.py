@@ -27,12 +27,20 @@ the RMP² policy's collision avoidance and lets the data correct the rest.
 
 The base reads the **raw** observation, so ``"nn_residual"`` cannot be combined with
 ``normalize_observations`` (the learners refuse it: :func:`check_actor`).
+
+**Precomputed bases.** ``b(s)`` does not depend on the parameters, so the learners evaluate it
+once per dataset transition when they are built (:func:`dataset_bases`, for the observations and
+next observations they sample) and pass the rows of each minibatch to the actor
+(:func:`apply_actor`; :func:`offline.data.sample_with` draws them with the minibatch). Each
+gradient step then skips the RMP² evaluations of its minibatch: on the 7-DoF Franka with its
+collision spheres that made a PSPI step 2.6× slower than with the plain MLP actor (2-core CPU).
+Evaluation in the environment computes ``b`` from the observation as before.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import flax.linen as nn
 import jax
@@ -81,10 +89,50 @@ class ResidualTanhGaussianPolicy(nn.Module):
     rmp_config: rmp_policies.PolicyConfig
     action_limit: float
 
-    def __call__(self, obs: jax.Array) -> TanhGaussian:
+    def __call__(self, obs: jax.Array, base: jax.Array | None = None) -> TanhGaussian:
+        """The distribution at ``obs``; ``base``: ``b(obs)`` when precomputed
+        (:func:`dataset_bases`), otherwise evaluated here."""
         dist = self.residual(obs)
-        base = base_pre_tanh(self.spec, self.rmp_config, self.action_limit, obs)
+        if base is None:
+            base = base_pre_tanh(self.spec, self.rmp_config, self.action_limit, obs)
         return TanhGaussian(dist.mean + base, dist.log_std)
+
+
+class ActorBases(NamedTuple):
+    """``b(s)`` (module docstring) of every transition's observation and next observation,
+    ``(N, A)`` each; ``None`` where not needed or for an actor without an RMP² base."""
+
+    observations: jax.Array | None = None
+    next_observations: jax.Array | None = None
+
+
+#: Observations per batch when :func:`dataset_bases` evaluates the RMP² base.
+BASE_CHUNK = 4096
+
+
+def dataset_bases(actor: nn.Module, observations: jax.Array,
+                  next_observations: jax.Array | None = None) -> ActorBases:
+    """``b(s)`` of ``actor``'s RMP² base at every row of ``observations`` and (if given)
+    ``next_observations`` — evaluated once, in batches of :data:`BASE_CHUNK`; empty
+    :class:`ActorBases` for an actor without a base (the plain MLP)."""
+    if not isinstance(actor, ResidualTanhGaussianPolicy):
+        return ActorBases()
+
+    @jax.jit
+    def of(obs: jax.Array) -> jax.Array:
+        row = lambda o: base_pre_tanh(actor.spec, actor.rmp_config, actor.action_limit, o)  # noqa: E731
+        return jax.lax.map(row, obs, batch_size=BASE_CHUNK)
+
+    return ActorBases(of(jnp.asarray(observations)),
+                      None if next_observations is None else of(jnp.asarray(next_observations)))
+
+
+def apply_actor(actor: nn.Module, params: Any, obs: jax.Array,
+                base: jax.Array | None = None) -> TanhGaussian:
+    """``actor``'s distribution at ``obs`` with its RMP² base ``b(obs)`` from ``base`` (the
+    matching rows of :func:`dataset_bases`) when given; the same as ``actor.apply(params, obs)``
+    up to float rounding."""
+    return actor.apply(params, obs) if base is None else actor.apply(params, obs, base)
 
 
 def make_actor(actor: str, metadata: Mapping[str, Any], action_size: int,
@@ -113,10 +161,14 @@ def make_actor(actor: str, metadata: Mapping[str, Any], action_size: int,
 
 __all__ = [
     "ACTORS",
+    "BASE_CHUNK",
     "BASE_CLIP",
     "BASE_VARIANT",
+    "ActorBases",
     "ResidualTanhGaussianPolicy",
+    "apply_actor",
     "base_pre_tanh",
     "check_actor",
+    "dataset_bases",
     "make_actor",
 ]

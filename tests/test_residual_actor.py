@@ -6,6 +6,10 @@
   its log-probability equals a float64 change-of-variables reference.
 * Learners build with ``actor="nn_residual"``: BC and ATAC train with finite losses and their
   ``act`` starts from the base; bad input names the argument.
+* The bases the learners precompute per transition (``dataset_bases``, batched with a
+  remainder) equal the float64 reference, minibatches drawn with ``sample_with`` carry the rows
+  of the transitions they hold, and a loss and its gradient are the same with the precomputed
+  base as with the base evaluated inside the actor.
 """
 
 from __future__ import annotations
@@ -17,15 +21,17 @@ import pytest
 
 import envs
 from mjxrmp import policies as rmp_policies
-from offline import atac, bc, cql, experiment, iql, sweep
+from offline import atac, bc, cql, experiment, iql, residual_actor, sweep
 from offline import data as odata
 from offline.learner import actor_params
 from offline.residual_actor import (
     BASE_CLIP,
     BASE_VARIANT,
     ResidualTanhGaussianPolicy,
+    apply_actor,
     base_pre_tanh,
     check_actor,
+    dataset_bases,
     make_actor,
 )
 from offline.tanh_gaussian import TanhGaussianPolicy
@@ -105,6 +111,45 @@ def _dataset(obs: jax.Array) -> odata.Dataset:
     return odata.create(o, rng.uniform(-1, 1, (n, 3)).astype(np.float32),
                         rng.uniform(-1, 1, n).astype(np.float32), o[::-1].copy(),
                         np.zeros(n), timeouts, ids, META)
+
+
+def test_precomputed_bases_are_the_actors_own(states, monkeypatch):
+    _, obs, inputs = states
+    actor = make_actor("nn_residual", META, 3, HIDDEN)
+    monkeypatch.setattr(residual_actor, "BASE_CHUNK", 5)  # 12 rows: two batches + a remainder
+    bases = dataset_bases(actor, obs, obs[::-1])
+    ref = _reference_base(inputs)
+    np.testing.assert_allclose(np.tanh(np.asarray(bases.observations, np.float64)), np.tanh(ref),
+                               atol=2e-4)
+    np.testing.assert_array_equal(np.asarray(bases.next_observations),
+                                  np.asarray(bases.observations)[::-1])
+    assert dataset_bases(make_actor("mlp", META, 3, HIDDEN), obs) == residual_actor.ActorBases()
+
+    # The minibatch of sample_with holds the bases of its own transitions.
+    ds = _dataset(obs)
+    batch, rows = odata.sample_with(ds, bases, jax.random.PRNGKey(7), 32)
+    plain = odata.sample(ds, jax.random.PRNGKey(7), 32)
+    np.testing.assert_array_equal(np.asarray(batch.observations), np.asarray(plain.observations))
+    online = jax.jit(jax.vmap(lambda o: base_pre_tanh(actor.spec, actor.rmp_config, 1.0, o)))
+    np.testing.assert_allclose(np.asarray(rows.observations),
+                               np.asarray(online(batch.observations)), atol=1e-5)
+    with pytest.raises(ValueError, match="one entry per transition"):
+        odata.sample_with(ds, bases.observations[:3], jax.random.PRNGKey(7), 4)
+
+    # Loss and gradient with the precomputed base equal those with the base evaluated inside.
+    params = jax.jit(actor.init)(jax.random.PRNGKey(0), obs[:1])
+    acts = jnp.tanh(jnp.asarray(ref, jnp.float32) * 0.5)
+
+    def loss(p, base):
+        return bc.bc_loss(actor, p, obs, acts, base)[0]
+
+    with_base = jax.jit(jax.value_and_grad(loss))(params, bases.observations)
+    inside = jax.jit(jax.value_and_grad(lambda p: loss(p, None)))(params)
+    for got, want in zip(jax.tree.leaves(with_base), jax.tree.leaves(inside), strict=True):
+        np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-4, atol=1e-5)
+    dist = apply_actor(actor, params, obs, bases.observations)
+    np.testing.assert_allclose(np.asarray(dist.mean), np.asarray(actor.apply(params, obs).mean),
+                               atol=1e-5)
 
 
 def test_learners_train_from_the_base_with_the_residual_actor(states):
