@@ -89,6 +89,11 @@ class ResidualTanhGaussianPolicy(nn.Module):
     rmp_config: rmp_policies.PolicyConfig
     action_limit: float
 
+    @property
+    def action_size(self) -> int:
+        """Size of the action (that of the residual MLP)."""
+        return self.residual.action_size
+
     def __call__(self, obs: jax.Array, base: jax.Array | None = None) -> TanhGaussian:
         """The distribution at ``obs``; ``base``: ``b(obs)`` when precomputed
         (:func:`dataset_bases`), otherwise evaluated here."""

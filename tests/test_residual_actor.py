@@ -4,8 +4,8 @@
   float64 from the environment's own policy inputs (not decoded) and the preset's acceleration.
 * With the MLP's output layer zeroed, the actor's mode is the base policy's clipped action and
   its log-probability equals a float64 change-of-variables reference.
-* Learners build with ``actor="nn_residual"``: BC and ATAC train with finite losses and their
-  ``act`` starts from the base; bad input names the argument.
+* Learners build with ``actor="nn_residual"``: BC, ATAC (Oracle), IQL and CQL train with finite
+  losses and their ``act`` starts from the base; bad input names the argument.
 * The bases the learners precompute per transition (``dataset_bases``, batched with a
   remainder) equal the float64 reference, minibatches drawn with ``sample_with`` carry the rows
   of the transitions they hold, and a loss and its gradient are the same with the precomputed
@@ -157,7 +157,7 @@ def test_learners_train_from_the_base_with_the_residual_actor(states):
     ds = _dataset(obs)
     budget = experiment.Budget(steps=20, hidden=HIDDEN, batch=8, actor="nn_residual")
     ref = np.clip(np.tanh(_reference_base(inputs)), -1, 1)
-    for learner in ("BC", "Oracle"):
+    for learner in ("BC", "Oracle", "IQL", "CQL"):
         trainer = experiment.build(learner, ds, None, budget)
         state = trainer.init(jax.random.PRNGKey(0))
         params = _zeroed(actor_params(state))
