@@ -483,8 +483,14 @@ def _plot(args, cells: dict, bias: dict, lengths: dict) -> None:
 
     from offline.survival import REWARD_VARIANTS
 
-    base = base_datasets(args.recipes, args.goal_deadline)
-    learners = [lrn for lrn in LEARNERS if lrn != "BC"]
+    # Rows and columns with results only (a sweep may train part of the grid).
+    trained = {(d, lrn) for d, lrn, _ in cells}
+    base = [d for d in base_datasets(args.recipes, args.goal_deadline)
+            if any((d, lrn) in trained for lrn in LEARNERS)]
+    learners = [lrn for lrn in LEARNERS if lrn != "BC" and any((d, lrn) in trained for d in base)]
+    if not base or not learners:
+        print("[figures] no trained cells: Figs 8.4 and 8.6 are left out", flush=True)
+        return
     colours = dict(zip(REWARD_VARIANTS, ("tab:green", "tab:grey", "tab:orange", "tab:red"),
                        strict=True))
     fig, axes = plt.subplots(len(base), len(learners), figsize=(3.2 * len(learners),
