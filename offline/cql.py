@@ -57,7 +57,14 @@ from offline.learner import (
     scan_steps,
 )
 from offline.networks import QEnsemble, polyak
-from offline.residual_actor import ActorBases, apply_actor, check_actor, dataset_bases, make_actor
+from offline.residual_actor import (
+    NO_BASES,
+    ActorBases,
+    apply_actor,
+    check_actor,
+    dataset_bases,
+    make_actor,
+)
 from offline.scenarios import RewardData
 
 
@@ -117,12 +124,11 @@ class CQLState(NamedTuple):
 
 def penalty_actions(policy: nn.Module, actor_params: Any, obs: jax.Array,
                     next_obs: jax.Array, key: jax.Array, num_samples: int,
-                    base: ActorBases | None = None) -> tuple[jax.Array, jax.Array]:
+                    base: ActorBases = NO_BASES) -> tuple[jax.Array, jax.Array]:
     """The importance samples of the CQL(H) log-sum-exp: ``(actions (3K, B, A), log_density
     (3K, B))`` — ``K`` uniform actions on ``[−1, 1]^A``, ``K`` from ``π(·|s)`` and ``K`` from
     ``π(·|s')``, with their log-densities; no gradient flows through them. ``base``: the
     residual actor's precomputed RMP² base at ``obs`` / ``next_obs`` (default: evaluated here)."""
-    base = ActorBases() if base is None else base
     k_unif, k_cur, k_next = jax.random.split(key, 3)
     batch = obs.shape[0]
     action_size = policy.action_size

@@ -111,6 +111,10 @@ class ActorBases(NamedTuple):
     next_observations: jax.Array | None = None
 
 
+#: No precomputed bases: every actor call evaluates its own (what :func:`dataset_bases` gives
+#: an actor without an RMP² base).
+NO_BASES = ActorBases()
+
 #: Observations per batch when :func:`dataset_bases` evaluates the RMP² base.
 BASE_CHUNK = 4096
 
@@ -121,7 +125,7 @@ def dataset_bases(actor: nn.Module, observations: jax.Array,
     ``next_observations`` — evaluated once, in batches of :data:`BASE_CHUNK`; empty
     :class:`ActorBases` for an actor without a base (the plain MLP)."""
     if not isinstance(actor, ResidualTanhGaussianPolicy):
-        return ActorBases()
+        return NO_BASES
 
     @jax.jit
     def of(obs: jax.Array) -> jax.Array:
@@ -169,6 +173,7 @@ __all__ = [
     "BASE_CHUNK",
     "BASE_CLIP",
     "BASE_VARIANT",
+    "NO_BASES",
     "ActorBases",
     "ResidualTanhGaussianPolicy",
     "apply_actor",

@@ -123,7 +123,7 @@ def test_precomputed_bases_are_the_actors_own(states, monkeypatch):
                                atol=2e-4)
     np.testing.assert_array_equal(np.asarray(bases.next_observations),
                                   np.asarray(bases.observations)[::-1])
-    assert dataset_bases(make_actor("mlp", META, 3, HIDDEN), obs) == residual_actor.ActorBases()
+    assert dataset_bases(make_actor("mlp", META, 3, HIDDEN), obs) == residual_actor.NO_BASES
 
     # The minibatch of sample_with holds the bases of its own transitions.
     ds = _dataset(obs)
