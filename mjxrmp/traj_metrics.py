@@ -29,6 +29,10 @@ reproduction rolled out for a demonstration's duration); for trajectories sample
 ``dt`` but of different durations, pad or cut them yourself before calling. :func:`resample`
 also offers arc-length resampling for purely geometric comparisons.
 
+:func:`distance_to_paths` is the one per-sample measure: the distance of every sample of a
+trajectory to the nearest point of a set of demonstrated paths (polylines), for corridor tests
+such as the Franka "task success" of ``scripts/lfd_franka.py``.
+
 Bad inputs raise ``ValueError`` naming the argument and the shape received: each trajectory must
 be a 2-D array ``(T, d)`` with ``T ≥ 1`` (``T ≥ 2`` where resampling or areas need it), both
 must have the same ``d``, and the swept error area needs ``d = 2``. Non-finite values are not
@@ -45,6 +49,7 @@ import numpy as np
 
 __all__ = [
     "all_metrics",
+    "distance_to_paths",
     "dtw",
     "dtw_jax",
     "dtw_normalized",
@@ -442,6 +447,43 @@ def swept_error_area_jax(a: jax.Array, b: jax.Array) -> jax.Array:
     _check_pair(a, b, min_len=2, dim=2)
     a, b = _common_length(jnp.asarray(a), jnp.asarray(b), resample_jax)
     return jnp.sum(_quad_areas(a[:-1], a[1:], b[1:], b[:-1], jnp))
+
+
+# ---------------------------------------------------------------------------------------------
+# Distance to a set of demonstrated paths
+# ---------------------------------------------------------------------------------------------
+
+
+def distance_to_paths(x, paths) -> np.ndarray:
+    """Per-sample distance ``d_t = min_i min_{p ∈ P_i} ‖x_t − p‖`` from a trajectory ``x (T, d)``
+    to the union of the polylines ``paths`` (a sequence of ``(S_i, d)`` arrays, consecutive
+    samples joined by straight segments; a single-sample path is a point), float64, shape ``(T,)``.
+
+    Exact: each sample is projected onto every segment, ``p = a + clip((x − a)·(b − a) /
+    ‖b − a‖², 0, 1)(b − a)``; zero-length segments reduce to their end point. Used for corridor
+    tests (how far a reproduction strays from where the demonstrations went).
+    """
+    _check_traj(x, "x")
+    if isinstance(paths, np.ndarray) and paths.ndim == 2:
+        raise ValueError("paths must be a sequence of (S, d) arrays (wrap a single path in a "
+                         f"list); got one array of shape {paths.shape}")
+    if len(paths) == 0:
+        raise ValueError("paths must hold at least one path; got none")
+    x = _f64(x)
+    best = np.full(x.shape[0], np.inf)
+    for i, path in enumerate(paths):
+        _check_traj(path, f"paths[{i}]", dim=x.shape[1])
+        p = _f64(path)
+        if p.shape[0] == 1:
+            best = np.minimum(best, np.linalg.norm(x - p[0], axis=1))
+            continue
+        a, ab = p[:-1], p[1:] - p[:-1]                                     # (S-1, d)
+        len2 = np.sum(ab * ab, axis=1)
+        t = np.einsum("tsd,sd->ts", x[:, None] - a[None], ab) / np.where(len2 > 0, len2, 1.0)
+        t = np.clip(np.where(len2 > 0, t, 0.0), 0.0, 1.0)
+        nearest = a[None] + t[..., None] * ab[None]                        # (T, S-1, d)
+        best = np.minimum(best, np.min(np.linalg.norm(x[:, None] - nearest, axis=2), axis=1))
+    return best
 
 
 # ---------------------------------------------------------------------------------------------

@@ -330,8 +330,27 @@ def test_script_quick_runs_end_to_end(tmp_path):
     assert joint["obstacle_rollouts"] == 2 and 0 <= joint["colliding_rollouts"] <= 2
     assert (joint["colliding_rollouts"] == 0) == (joint["min_clearance_obstacle"] > 0)
     assert joint["joint_limit_violations"] == 0
+    for fold in joint["folds"]:   # the corridor test only removes successes; excursions >= 0
+        assert 0 <= fold["task_success"] <= fold["success"]
+        assert len(fold["corridor_excursions"]) == 1 and fold["corridor_excursions"][0] >= 0
     assert (tmp_path / "table.csv").read_text().startswith("task,strategy,")
     for name in ("lfd_franka_drawer_closing.png", "lfd_franka_errors.png"):
         assert (tmp_path / name).stat().st_size > 1000
     assert out["tasks"]["drawer_closing"]["joint"]["mean_position_error"] == \
         joint["mean_position_error"]
+
+
+def test_corridor_excursion_by_hand():
+    """A rollout that starts 3 cm off the demonstrated corridor and then runs along it has
+    excursion 0; one that moves 10 cm farther away mid-way has 0.10; the worst point counts."""
+    from scripts.lfd_franka import corridor_excursions
+
+    t = np.linspace(0.0, 1.0, 21)
+    line = np.stack([t, np.zeros_like(t), np.zeros_like(t)], axis=1)           # along x
+    side = np.array([0.0, 0.1, 0.0])
+    demo = np.stack([line, line + side, line + 2 * side], axis=1)            # (21, 3, 3)
+    along = demo + np.array([0.0, 0.0, 0.03]) * (t[::-1, None, None] > 0.9)  # starts 3 cm above
+    bump = demo.copy()
+    bump[10, 2] += np.array([0.0, 0.0, 0.10])                               # one point lifted
+    np.testing.assert_allclose(corridor_excursions(np.stack([along, bump]), [demo]),
+                               [0.0, 0.10], atol=1e-12)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -263,3 +265,42 @@ def test_bad_shapes_raise_clear_errors():
         tm.resample(good, 0)
     with pytest.raises(ValueError, match="by must be"):
         tm.resample(good, 3, by="space")
+
+
+# ---------------------------------------------------------------------------------------------
+# Distance to demonstrated paths
+# ---------------------------------------------------------------------------------------------
+
+
+def test_distance_to_paths_by_hand():
+    seg = np.array([[-1.0, 0.0], [1.0, 0.0]])
+    x = np.array([[0.0, 1.0], [2.0, 0.0], [2.0, 1.0], [0.5, 0.0], [-3.0, -4.0]])
+    np.testing.assert_allclose(tm.distance_to_paths(x, [seg]),
+                               [1.0, 1.0, np.sqrt(2.0), 0.0, np.sqrt(4.0 + 16.0)])
+    # the nearer of two paths; a one-sample path is a point; a repeated sample is harmless
+    other = np.array([[2.0, 1.0]])
+    repeated = np.array([[0.0, 3.0], [0.0, 3.0], [0.0, 5.0]])
+    np.testing.assert_allclose(tm.distance_to_paths(x, [seg, other, repeated]),
+                               [1.0, 1.0, 0.0, 0.0, np.sqrt(4.0 + 16.0)])
+
+
+@settings(max_examples=25, deadline=None)
+@given(hnp.arrays(np.float64, (6, 3), elements=st.floats(-1, 1)),
+       hnp.arrays(np.float64, (4, 3), elements=st.floats(-1, 1)))
+def test_distance_to_paths_matches_dense_sampling(x, path):
+    """Exact projection vs the path sampled at 2001 points per segment (upper bound, close)."""
+    u = np.linspace(0.0, 1.0, 2001)[:, None]
+    dense = np.concatenate([a + u * (b - a) for a, b in itertools.pairwise(path)])
+    brute = np.min(np.linalg.norm(x[:, None] - dense[None], axis=2), axis=1)
+    exact = tm.distance_to_paths(x, [path])
+    assert np.all(exact <= brute + 1e-12)
+    np.testing.assert_allclose(exact, brute, atol=2e-3)
+
+
+def test_distance_to_paths_bad_input():
+    with pytest.raises(ValueError, match="paths must hold at least one path"):
+        tm.distance_to_paths(np.zeros((3, 2)), [])
+    with pytest.raises(ValueError, match=r"paths\[1\] must be 2-D"):
+        tm.distance_to_paths(np.zeros((3, 2)), [np.zeros((2, 2)), np.zeros((2, 3))])
+    with pytest.raises(ValueError, match="wrap a single path in a list"):
+        tm.distance_to_paths(np.zeros((3, 2)), np.zeros((4, 2)))
