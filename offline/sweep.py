@@ -148,6 +148,13 @@ def add_learner_options(parser: Any) -> None:
                              "(offline.experiment.atac_config; cells get their own key)")
 
 
+def add_checkpoint_option(parser: Any) -> None:
+    """``--checkpoints DIR`` of the sweep scripts (:func:`train_program`)."""
+    parser.add_argument("--checkpoints", type=Path, default=None, metavar="DIR",
+                        help="save every program's state under DIR after each --chunk steps "
+                             "and continue an interrupted program from there (default: off)")
+
+
 #: The learner settings our first results were made with: result rows and checkpoints from
 #: before a setting existed have these values, and cell keys name only the settings that differ.
 ORIGINAL_SETTINGS = {"normalize_observations": False, "actor": "mlp",
@@ -208,6 +215,46 @@ def progress_printer(name: str, total_steps: int, t0: float) -> Callable[[Any, d
     return progress
 
 
+def program_checkpoint_dir(root: Path | None, program: str) -> Path | None:
+    """The checkpoint folder of one compiled program (a cell or, in chapter 8, the cells of
+    several rewards) under ``root``: ``root / <crc32 of program>``; ``None`` when ``root`` is."""
+    if root is None:
+        return None
+    return Path(root) / f"{zlib.crc32(program.encode()):08x}"
+
+
+def train_program(trainer: Trainer, keys: Any, chunk: int,
+                  on_chunk: Callable[[Any, dict, int], None] | None = None,
+                  checkpoint_dir: Path | None = None, program: str = "") -> Any:
+    """Train one sweep program (:func:`offline.experiment.train_chunked`) and return its final
+    state. With ``checkpoint_dir`` the state is saved there after every chunk
+    (:mod:`agents.checkpoint`: orbax, atomic, the newest three kept), and a program started
+    again with the same folder continues from its newest checkpoint instead of step 0, so a run
+    stopped by a time limit loses at most one chunk. ``program`` (the cell key) is stored with
+    the checkpoint; a checkpoint of another program is refused
+    (:class:`agents.checkpoint.IncompatibleCheckpointError`). The caller removes the folder
+    once the program's results are written."""
+    from agents import checkpoint
+
+    state, start = None, 0
+    if checkpoint_dir is not None and checkpoint.latest_step(checkpoint_dir) is not None:
+        template = jax.eval_shape(lambda k: experiment.init_runs(trainer, k, None), keys)
+        state, saved = checkpoint.restore(checkpoint_dir, template,
+                                          expected={"program": program})
+        start = int(saved["step"])
+        print(f"  resumed from step {start} ({checkpoint_dir})", flush=True)
+
+    def after_chunk(st: Any, means: dict, done: int) -> None:
+        if checkpoint_dir is not None:
+            checkpoint.save(checkpoint_dir, done, st, {"program": program})
+        if on_chunk is not None:
+            on_chunk(st, means, done)
+
+    state, _ = experiment.train_chunked(trainer, keys, chunk, after_chunk, state=state,
+                                        start=start)
+    return state
+
+
 def collect_cached(path: Path, env_name: str, recipe: str, scale: int, seed: int, label: str,
                    **collect_kwargs: Any) -> None:
     """Collect ``recipe`` on ``env_name`` (:func:`offline.collect.collect_recipe`, the documented
@@ -245,10 +292,12 @@ __all__ = [
     "ORIGINAL_SETTINGS",
     "REWARD_LEARNERS",
     "RewardBatchedState",
+    "add_checkpoint_option",
     "add_learner_options",
     "apply_preset",
     "build_plain",
     "done_cells",
+    "program_checkpoint_dir",
     "progress_printer",
     "reward_batched",
     "reward_key",
@@ -260,4 +309,5 @@ __all__ = [
     "setting_changes",
     "setting_fields",
     "setting_key",
+    "train_program",
 ]

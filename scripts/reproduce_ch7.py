@@ -18,7 +18,9 @@ Stages (``--stage all`` runs them in order; each is resumable):
    ``--steps`` gradient steps (:class:`offline.experiment.Budget`), then ``--eval-episodes``
    episodes per seed in the environment (:mod:`offline.evaluate`, normalised score: uniform
    random 0, hand-designed expert 100; last iterate). One JSON line per cell in
-   ``OUT/results.jsonl``; cells already there are skipped.
+   ``OUT/results.jsonl``; cells already there are skipped. With ``--checkpoints DIR`` every
+   cell's state is also saved after each ``--chunk`` steps, and a cell interrupted (e.g. by a
+   time limit) continues from its last chunk when the command is run again.
 3. **table** — ``OUT/table.md`` and ``OUT/table.csv`` (of the cells with the same
    ``--normalize-observations`` setting): mean ± standard error over seeds per
    cell; in each row the entries within 90 % of the best non-Oracle score are bold (thesis
@@ -31,6 +33,7 @@ import argparse
 import json
 import math
 import os
+import shutil
 import sys
 import time
 from collections.abc import Sequence
@@ -56,7 +59,7 @@ PRESETS = {
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     from offline.experiment import TABLE_LEARNERS
-    from offline.sweep import add_learner_options, apply_preset
+    from offline.sweep import add_checkpoint_option, add_learner_options, apply_preset
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
@@ -72,6 +75,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--scale", type=int, default=None, help="episodes per dataset source")
     p.add_argument("--eval-episodes", type=int, default=None)
     p.add_argument("--chunk", type=int, default=None, help="gradient steps per compiled call")
+    add_checkpoint_option(p)
     add_learner_options(p)
     p.add_argument("--remove-terminals", action="store_true",
                    help="treat terminals (collisions) as timeouts in both datasets")
@@ -109,7 +113,13 @@ def train_stage(args) -> None:
     from offline import collect, evaluate, experiment, scenarios
     from offline import data as odata
     from offline.learner import actor_params
-    from offline.sweep import done_cells, progress_printer, setting_fields
+    from offline.sweep import (
+        done_cells,
+        program_checkpoint_dir,
+        progress_printer,
+        setting_fields,
+        train_program,
+    )
 
     results = args.out / "results.jsonl"
     done = done_cells(results)
@@ -136,7 +146,8 @@ def train_stage(args) -> None:
 
                 progress = progress_printer(f"{env} {scenario} {learner}", args.steps, t0)
 
-                state, _ = experiment.train_chunked(trainer, keys, args.chunk, progress)
+                ckpt = program_checkpoint_dir(args.checkpoints, cell)
+                state = train_program(trainer, keys, args.chunk, progress, ckpt, cell)
                 train_s = time.perf_counter() - t0
                 params = actor_params(state)
                 ev = jax.vmap(lambda p, _t=trainer, _e=evaluator: _e.evaluate(
@@ -153,6 +164,8 @@ def train_stage(args) -> None:
                 results.parent.mkdir(parents=True, exist_ok=True)
                 with open(results, "a") as f:
                     f.write(json.dumps(row) + "\n")
+                if ckpt is not None:   # the result is written: the checkpoints are not needed
+                    shutil.rmtree(ckpt, ignore_errors=True)
                 score = np.asarray(ev["normalized_score"])
                 print(f"[train] {env} {scenario:9s} {learner:6s}: score {score.mean():7.1f} ± "
                       f"{score.std(ddof=1) / math.sqrt(len(score)):5.1f}  safe "

@@ -46,7 +46,9 @@ Stages (``--stage all`` runs them in order; each is resumable):
    ``--eval-episodes`` episodes (:mod:`offline.evaluate`: normalised score — uniform random 0,
    hand-designed expert 100 — safe %, success %). One JSON line per (dataset, learner, reward)
    cell in ``OUT/results.jsonl``; cells already there are skipped, so processes split by
-   ``--datasets`` / ``--learners`` / ``--rewards`` can share ``OUT``.
+   ``--datasets`` / ``--learners`` / ``--rewards`` can share ``OUT``. With ``--checkpoints
+   DIR`` every program's state is also saved after each ``--chunk`` steps, and a program
+   interrupted (e.g. by a time limit) continues from its last chunk when run again.
 3. **figures** — ``fig8_4.png`` (rows datasets, columns learners, bars per reward: normalised
    score ± s.e. over seeds, BC as a dashed line), ``fig8_5.png`` (episode length vs return per
    dataset, :func:`offline.survival.length_bias_statistics`, correlation in the title),
@@ -69,6 +71,7 @@ import argparse
 import json
 import math
 import os
+import shutil
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -104,7 +107,7 @@ PRESETS = {
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     from offline.collect import RECIPES
     from offline.survival import REWARD_VARIANTS, TERMINAL_MODES
-    from offline.sweep import add_learner_options, apply_preset
+    from offline.sweep import add_checkpoint_option, add_learner_options, apply_preset
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
@@ -126,6 +129,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--reference-episodes", type=int, default=None,
                    help="episodes of the expert / random reference returns")
     p.add_argument("--chunk", type=int, default=None, help="gradient steps per compiled call")
+    add_checkpoint_option(p)
     p.add_argument("--safety", action=argparse.BooleanOptionalAction, default=True,
                    help="also train on the collision-filtered dataset (§8.4.2)")
     p.add_argument("--safety-dataset", default="mixed-full")
@@ -311,7 +315,9 @@ def train_stage(args) -> None:
 
             progress = sweep.progress_printer(f"{name} {learner} ({runs} runs)", args.steps, t0)
 
-            state, _ = experiment.train_chunked(trainer, keys, args.chunk, progress)
+            program = json.dumps([_cell_key(name, learner, r, args) for r in cell_rewards])
+            ckpt = sweep.program_checkpoint_dir(args.checkpoints, program)
+            state = sweep.train_program(trainer, keys, args.chunk, progress, ckpt, program)
             jax.block_until_ready(state)
             train_s = time.perf_counter() - t0
             groups = evaluation(trainer.act, sweep.run_actor_params(state), args.seeds)
@@ -334,6 +340,8 @@ def train_stage(args) -> None:
                       f"{score.mean():7.1f} ± {_se(score):5.1f}  safe "
                       f"{np.mean(ev['safe_pct']):5.1f} %  success "
                       f"{np.mean(ev['success_pct']):5.1f} %", flush=True)
+            if ckpt is not None:   # the results are written: the checkpoints are no longer needed
+                shutil.rmtree(ckpt, ignore_errors=True)
             print(f"[time] {name} {learner}: {runs} runs × {args.steps} steps in one program, "
                   f"train {train_s:.1f} s, eval {eval_s:.1f} s", flush=True)
 

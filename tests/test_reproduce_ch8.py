@@ -64,6 +64,40 @@ def test_reward_batched_equals_separate_runs(learner):
     assert not np.allclose(leaf[1], leaf[3]) and not np.allclose(leaf[2], leaf[3])
 
 
+def test_interrupted_program_resumes_from_its_checkpoint(tmp_path):
+    """A rewards × seeds program stopped after its first chunk continues from the checkpoint
+    to the same final state, bit for bit, as an uninterrupted run; the checkpoint of another
+    program is refused."""
+    from agents import checkpoint
+
+    ds = _synthetic()
+    budget = experiment.Budget(steps=10, hidden=(8, 8), batch=16, actor_rate="scaled")
+    base, rows = sweep.reward_rows(ds, ["original", "random"], "keep", sweep.reward_key(0, "x"))
+    trainer = sweep.reward_batched("ATAC", base, budget)
+    keys = sweep.reward_seed_keys(rows, [0, 1])
+    straight = sweep.train_program(trainer, keys, 5)
+    ckpt = sweep.program_checkpoint_dir(tmp_path, "cell A")
+    assert ckpt.parent == tmp_path and sweep.program_checkpoint_dir(None, "cell A") is None
+
+    class Stop(Exception):
+        pass
+
+    def stop(state, means, done):
+        raise Stop
+
+    with pytest.raises(Stop):
+        sweep.train_program(trainer, keys, 5, stop, ckpt, "cell A")
+    assert checkpoint.latest_step(ckpt) == 5
+    seen = []
+    resumed = sweep.train_program(trainer, keys, 5, lambda s, m, d: seen.append(d), ckpt,
+                                  "cell A")
+    assert seen == [10]   # only the second chunk ran
+    for a, b in zip(jax.tree.leaves(resumed), jax.tree.leaves(straight), strict=True):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(checkpoint.IncompatibleCheckpointError, match="program"):
+        sweep.train_program(trainer, keys, 5, None, ckpt, "cell B")
+
+
 # --------------------------------------------------------------------------------------------
 # Figures stage on hand-made results
 
