@@ -73,10 +73,10 @@ demonstrations' starts (exact and perturbed) of every fold.
 Writes ``metrics.json`` (per task and strategy: per-fold errors per control point, success
 counts, training time and final losses; the settings) and ``table.csv`` to ``--out``, and the
 figures ``lfd_franka_<task>.png`` (demonstrated vs reproduced control-point triangles and
-centre paths, 3-D, as Figs 5.1/5.4) and ``lfd_franka_errors.png`` (box plots of the errors and
-success rates per strategy, as Fig 5.7) to ``--figures``. The default (CPU preset, 2 tasks × 5
-strategies × 6 folds) takes 5–8 minutes on 2 CPU cores (5.1 min in session 8, 7.8 at load 1–2;
-``--strategies two_step`` alone takes about 1 minute);
+centre paths, 3-D, as Figs 5.1/5.4) and ``lfd_franka_errors.png`` (box plots of the errors, the
+success rates and the corridor excursions per strategy, as Fig 5.7) to ``--figures``. The
+default (CPU preset, 2 tasks × 5 strategies × 6 folds) takes 5–8 minutes on 2 CPU cores
+(5.1 min in session 8, 7.8 at load 1–2; ``--strategies two_step`` alone takes about 1 minute);
 ``--preset thesis`` uses the full model sizes and iteration counts (hours on a CPU; 387 s for
 2 tasks × 4 strategies as 8 processes side by side on one H100, and worse results than the CPU
 preset: BENCHMARKS.md).
