@@ -225,28 +225,31 @@ def program_checkpoint_dir(root: Path | None, program: str) -> Path | None:
 
 def train_program(trainer: Trainer, keys: Any, chunk: int,
                   on_chunk: Callable[[Any, dict, int], None] | None = None,
-                  checkpoint_dir: Path | None = None, program: str = "") -> Any:
-    """Train one sweep program (:func:`offline.experiment.train_chunked`) and return its final
-    state. With ``checkpoint_dir`` the state is saved there after every chunk
-    (:mod:`agents.checkpoint`: orbax, atomic, the newest three kept), and a program started
-    again with the same folder continues from its newest checkpoint instead of step 0, so a run
-    stopped by a time limit loses at most one chunk. ``program`` (the cell key) is stored with
-    the checkpoint; a checkpoint of another program is refused
-    (:class:`agents.checkpoint.IncompatibleCheckpointError`). The caller removes the folder
-    once the program's results are written."""
+                  checkpoint_dir: Path | None = None, meta: Mapping[str, Any] | None = None,
+                  betas: Sequence[float] | None = None) -> Any:
+    """Train the runs ``keys`` (at ``betas``, :func:`offline.experiment.init_runs`) in chunks
+    (:func:`offline.experiment.train_chunked`) and return the final state. With
+    ``checkpoint_dir`` the state is saved there after every chunk (:mod:`agents.checkpoint`:
+    orbax, atomic, the newest three kept) with ``meta`` (e.g. the cell key), and a program
+    started again with the same folder continues from its newest checkpoint instead of step 0,
+    so a run stopped by a time limit loses at most one chunk. A checkpoint whose meta differs
+    from ``meta`` is refused (:class:`agents.checkpoint.IncompatibleCheckpointError`). The
+    caller removes the folder once the program's results are written."""
     from agents import checkpoint
 
-    state, start = None, 0
+    meta = dict(meta or {})
+    start = 0
     if checkpoint_dir is not None and checkpoint.latest_step(checkpoint_dir) is not None:
-        template = jax.eval_shape(lambda k: experiment.init_runs(trainer, k, None), keys)
-        state, saved = checkpoint.restore(checkpoint_dir, template,
-                                          expected={"program": program})
+        template = jax.eval_shape(lambda k: experiment.init_runs(trainer, k, betas), keys)
+        state, saved = checkpoint.restore(checkpoint_dir, template, expected=meta)
         start = int(saved["step"])
-        print(f"  resumed from step {start} ({checkpoint_dir})", flush=True)
+        print(f"resumed from step {start} of {checkpoint_dir}", file=sys.stderr, flush=True)
+    else:
+        state = experiment.init_runs(trainer, keys, betas)
 
     def after_chunk(st: Any, means: dict, done: int) -> None:
         if checkpoint_dir is not None:
-            checkpoint.save(checkpoint_dir, done, st, {"program": program})
+            checkpoint.save(checkpoint_dir, done, st, meta)
         if on_chunk is not None:
             on_chunk(st, means, done)
 

@@ -147,7 +147,7 @@ def train_stage(args) -> None:
                 progress = progress_printer(f"{env} {scenario} {learner}", args.steps, t0)
 
                 ckpt = program_checkpoint_dir(args.checkpoints, cell)
-                state = train_program(trainer, keys, args.chunk, progress, ckpt, cell)
+                state = train_program(trainer, keys, args.chunk, progress, ckpt, {"program": cell})
                 train_s = time.perf_counter() - t0
                 params = actor_params(state)
                 ev = jax.vmap(lambda p, _t=trainer, _e=evaluator: _e.evaluate(

@@ -317,7 +317,8 @@ def train_stage(args) -> None:
 
             program = json.dumps([_cell_key(name, learner, r, args) for r in cell_rewards])
             ckpt = sweep.program_checkpoint_dir(args.checkpoints, program)
-            state = sweep.train_program(trainer, keys, args.chunk, progress, ckpt, program)
+            state = sweep.train_program(trainer, keys, args.chunk, progress, ckpt,
+                                        {"program": program})
             jax.block_until_ready(state)
             train_s = time.perf_counter() - t0
             groups = evaluation(trainer.act, sweep.run_actor_params(state), args.seeds)

@@ -133,7 +133,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     from agents.training import ProgressBar
     from offline import evaluate, experiment
     from offline.learner import actor_params
-    from offline.sweep import setting_changes, setting_fields
+    from offline.sweep import setting_changes, setting_fields, train_program
 
     args = parse_args(argv)
     t_start = time.perf_counter()
@@ -151,25 +151,15 @@ def main(argv: Sequence[str] | None = None) -> dict:
     if run_betas is not None:  # one entry per run, seed-major
         meta["run_seeds"], meta["betas"] = run_seeds, run_betas
     ckpt_dir = args.out / "checkpoints"
-    state, start = None, 0
-    if args.resume and checkpoint.latest_step(ckpt_dir) is not None:
-        template = jax.eval_shape(lambda k: experiment.init_runs(trainer, k, run_betas), keys)
-        try:
-            state, saved = checkpoint.restore(ckpt_dir, template, expected=meta)
-        except checkpoint.IncompatibleCheckpointError as err:
-            raise SystemExit(f"--resume: {err}") from None
-        start = int(saved["step"])
-        print(f"resumed from step {start} of {ckpt_dir}", file=sys.stderr)
-    elif args.out.exists() and checkpoint.latest_step(ckpt_dir) is not None:
+    resuming = checkpoint.latest_step(ckpt_dir) is not None
+    if resuming and not args.resume:
         raise SystemExit(f"{args.out} already holds a run; pass --resume or another --out")
     args.out.mkdir(parents=True, exist_ok=True)
     bar = None if args.no_progress else ProgressBar(args.steps)
     csv_path = args.out / "metrics.csv"
-    if start == 0 and csv_path.exists():
+    if not resuming and csv_path.exists():
         csv_path.unlink()
     t_train = time.perf_counter()
-    if state is None:
-        state = experiment.init_runs(trainer, keys, run_betas)
     labels = ["seed"] + (["beta"] if run_betas else [])
     runs = list(zip(run_seeds, run_betas or [None] * len(run_seeds), strict=True))
 
@@ -182,13 +172,14 @@ def main(argv: Sequence[str] | None = None) -> dict:
             for i, run in enumerate(runs):
                 w.writerow([done, *run[:len(labels)],
                             *(f"{float(v[i]):.6g}" for v in means.values())])
-        checkpoint.save(ckpt_dir, done, st, meta)
         if bar is not None:
             losses = [f"{k} {float(np.mean(v)):.3g}" for k, v in means.items() if "loss" in k]
             bar.update(done, " ".join(losses[:3]))
 
-    state, _ = experiment.train_chunked(trainer, keys, args.chunk, on_chunk, state=state,
-                                        start=start)
+    try:
+        state = train_program(trainer, keys, args.chunk, on_chunk, ckpt_dir, meta, run_betas)
+    except checkpoint.IncompatibleCheckpointError as err:
+        raise SystemExit(f"--resume: {err}") from None
     if bar is not None:
         bar.close()
     train_s = time.perf_counter() - t_train

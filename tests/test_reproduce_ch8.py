@@ -86,16 +86,16 @@ def test_interrupted_program_resumes_from_its_checkpoint(tmp_path):
         raise Stop
 
     with pytest.raises(Stop):
-        sweep.train_program(trainer, keys, 5, stop, ckpt, "cell A")
+        sweep.train_program(trainer, keys, 5, stop, ckpt, {"program": "cell A"})
     assert checkpoint.latest_step(ckpt) == 5
     seen = []
     resumed = sweep.train_program(trainer, keys, 5, lambda s, m, d: seen.append(d), ckpt,
-                                  "cell A")
+                                  {"program": "cell A"})
     assert seen == [10]   # only the second chunk ran
     for a, b in zip(jax.tree.leaves(resumed), jax.tree.leaves(straight), strict=True):
         np.testing.assert_array_equal(a, b)
     with pytest.raises(checkpoint.IncompatibleCheckpointError, match="program"):
-        sweep.train_program(trainer, keys, 5, None, ckpt, "cell B")
+        sweep.train_program(trainer, keys, 5, None, ckpt, {"program": "cell B"})
 
 
 # --------------------------------------------------------------------------------------------
