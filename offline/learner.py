@@ -235,7 +235,9 @@ def normalized_dataset(dataset: odata.Dataset, name: str = "dynamics",
     scale = action_scale(dataset)
     actions = np.asarray(dataset.actions) / np.asarray(scale, np.asarray(dataset.actions).dtype)
     data = normalizer.apply_states(dataset.replace(actions=actions))
-    return jax.device_put(data), scale, normalizer
+    # leaf by leaf: where the rewards are traced (offline.sweep.reward_batched) the other
+    # fields stay concrete arrays instead of joining one staged transfer
+    return jax.tree.map(jax.device_put, data), scale, normalizer
 
 
 def policy_act(policy: nn.Module, scale: float,

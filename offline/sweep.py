@@ -87,7 +87,11 @@ def reward_batched(learner: str, dataset: odata.Dataset, budget: experiment.Budg
     concrete = build_plain(learner, dataset, budget)
 
     def inner(rewards: jax.Array) -> Trainer:
-        return build_plain(learner, dataset.replace(rewards=rewards), budget)
+        # Built inside the traced init/run: what depends only on the (concrete) dataset — its
+        # preparation, the NN-RESIDUAL actor's precomputed RMP² bases — is evaluated when
+        # traced, not staged into the program and recomputed on every call.
+        with jax.ensure_compile_time_eval():
+            return build_plain(learner, dataset.replace(rewards=rewards), budget)
 
     def init(arg: tuple[jax.Array, jax.Array], beta: Any = None) -> RewardBatchedState:
         rewards, key = arg
