@@ -167,6 +167,32 @@ def test_learners_train_from_the_base_with_the_residual_actor(states):
         assert np.isfinite(np.asarray(trainer.act(actor_params(state), obs))).all()
 
 
+def test_reward_batched_programs_get_concrete_bases(states, monkeypatch):
+    """The chapter-8 programs build each learner inside the traced ``run``
+    (``offline.sweep.reward_batched``); the RMP² bases must still be computed from concrete
+    data — once, when traced — not staged into the program and recomputed on every call."""
+    from offline import atac, cql, iql, sweep
+
+    _, obs, _ = states
+    ds = _dataset(obs)
+    seen = []
+
+    def spy(actor, observations, next_observations=None):
+        seen.append(isinstance(observations, jax.core.Tracer))
+        return dataset_bases(actor, observations, next_observations)
+
+    for module in (atac, iql, cql):
+        monkeypatch.setattr(module, "dataset_bases", spy)
+    budget = experiment.Budget(steps=10, hidden=HIDDEN, batch=8, actor="nn_residual")
+    base, rows = sweep.reward_rows(ds, ["original", "zero"], "keep", sweep.reward_key(0, "x"))
+    for learner in ("ATAC", "IQL", "CQL"):
+        trainer = sweep.reward_batched(learner, base, budget)
+        state = experiment.init_runs(trainer, sweep.reward_seed_keys(rows, [0]), None)
+        seen.clear()
+        jax.make_jaxpr(lambda s, t=trainer: jax.vmap(t.run, in_axes=(0, None))(s, 2))(state)
+        assert seen and not any(seen), learner
+
+
 def test_mlp_actor_is_the_default_and_unchanged():
     for cfg in (atac.ATACConfig(), bc.BCConfig(), iql.IQLConfig(), cql.CQLConfig(),
                 experiment.Budget(steps=10)):
