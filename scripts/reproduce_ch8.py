@@ -48,12 +48,15 @@ Stages (``--stage all`` runs them in order; each is resumable):
    cell in ``OUT/results.jsonl``; cells already there are skipped, so processes split by
    ``--datasets`` / ``--learners`` / ``--rewards`` can share ``OUT``. With ``--checkpoints
    DIR`` every program's state is also saved after each ``--chunk`` steps, and a program
-   interrupted (e.g. by a time limit) continues from its last chunk when run again.
+   interrupted (e.g. by a time limit) continues from its last chunk when run again. With
+   ``--curve`` every run is also evaluated after each chunk, the same way as its last iterate;
+   the rows then carry ``curve`` (steps and per-seed results per step).
 3. **figures** — ``fig8_4.png`` (rows datasets, columns learners, bars per reward: normalised
    score ± s.e. over seeds, BC as a dashed line), ``fig8_5.png`` (episode length vs return per
    dataset, :func:`offline.survival.length_bias_statistics`, correlation in the title),
    ``fig8_6.png`` (eq 8.3 positive-data-bias estimate per dataset and learner; ∞ drawn as a
-   capped, labelled bar), ``table.md`` / ``table.csv``, ``safety.md`` / ``safety.json`` and
+   capped, labelled bar), ``fig8_curves.png`` (score against gradient steps, for cells trained
+   with ``--curve``), ``table.md`` / ``table.csv``, ``safety.md`` / ``safety.json`` and
    ``summary.json`` with the acceptance checks computed from the results:
 
    (a) "well above BC": the mean over the three wrong rewards of a learner's mean score is at
@@ -129,6 +132,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--reference-episodes", type=int, default=None,
                    help="episodes of the expert / random reference returns")
     p.add_argument("--chunk", type=int, default=None, help="gradient steps per compiled call")
+    p.add_argument("--curve", action="store_true",
+                   help="also evaluate every run after each --chunk steps: learning curves in "
+                        "the result rows (`curve`) and fig8_curves.png (evaluation only, the "
+                        "training and the final scores are unchanged)")
     add_checkpoint_option(p)
     p.add_argument("--safety", action=argparse.BooleanOptionalAction, default=True,
                    help="also train on the collision-filtered dataset (§8.4.2)")
@@ -279,6 +286,35 @@ class _Evaluation:
         return out
 
 
+class _Curve:
+    """Learning curves of one program: after every chunk each run's actor is evaluated like the
+    final iterate (same episodes, same key), and the per-seed results are kept per group of
+    ``seeds`` runs. A program resumed from a checkpoint has points from the resumed step on."""
+
+    def __init__(self, evaluation: _Evaluation, act: Callable, seeds: int):
+        from offline import sweep
+
+        self.evaluation, self.act, self.seeds = evaluation, act, seeds
+        self.params = sweep.run_actor_params
+        self.steps: list[int] = []
+        self.points: list[list[dict[str, list[float]]]] = []
+        self.seconds = 0.0
+
+    def record(self, state: Any, steps: int) -> None:
+        t0 = time.perf_counter()
+        self.points.append(self.evaluation(self.act, self.params(state), self.seeds))
+        self.steps.append(int(steps))
+        self.seconds += time.perf_counter() - t0
+        score = np.mean(self.points[-1][0]["normalized_score"])
+        print(f"    [curve] step {steps}: first group's score {score:.1f}", flush=True)
+
+    def groups(self) -> list[dict[str, list]]:
+        """Per group: ``{"steps": [...], <metric>: [[per-seed values] per step]}``."""
+        n = len(self.points[0]) if self.points else 0
+        return [{"steps": self.steps, **{k: [p[g][k] for p in self.points]
+                                         for k in self.points[0][g]}} for g in range(n)]
+
+
 def train_stage(args) -> None:
     """Train and evaluate every missing cell; append one JSON line per cell."""
     from offline import experiment, sweep
@@ -314,15 +350,24 @@ def train_stage(args) -> None:
             runs = keys[0].shape[0] if isinstance(keys, tuple) else keys.shape[0]
 
             progress = sweep.progress_printer(f"{name} {learner} ({runs} runs)", args.steps, t0)
+            curve = _Curve(evaluation, trainer.act, args.seeds) if args.curve else None
+
+            def on_chunk(st, means, done, _progress=progress, _curve=curve):
+                _progress(st, means, done)
+                if _curve is not None:
+                    _curve.record(st, done)
 
             program = json.dumps([_cell_key(name, learner, r, args) for r in cell_rewards])
             ckpt = sweep.program_checkpoint_dir(args.checkpoints, program)
-            state = sweep.train_program(trainer, keys, args.chunk, progress, ckpt,
+            state = sweep.train_program(trainer, keys, args.chunk, on_chunk, ckpt,
                                         {"program": program})
             jax.block_until_ready(state)
             train_s = time.perf_counter() - t0
             groups = evaluation(trainer.act, sweep.run_actor_params(state), args.seeds)
             eval_s = time.perf_counter() - t0 - train_s
+            if curve is not None:  # its evaluations count as evaluation time
+                groups = [{**ev, "curve": c} for ev, c in zip(groups, curve.groups(), strict=True)]
+                train_s, eval_s = train_s - curve.seconds, eval_s + curve.seconds
             results.parent.mkdir(parents=True, exist_ok=True)
             for reward, ev in zip(cell_rewards, groups, strict=True):
                 row = {"cell": _cell_key(name, learner, reward, args), "dataset": name,
@@ -370,9 +415,14 @@ def load_cells(args) -> dict[tuple[str, str, str], dict]:
         if r["cell"] != _cell_key(r["dataset"], r["learner"], r["reward"], args):
             continue
         s = np.asarray(r["normalized_score"], np.float64)
-        cells[(r["dataset"], r["learner"], r["reward"])] = {
+        cell = cells[(r["dataset"], r["learner"], r["reward"])] = {
             "mean": float(s.mean()), "se": _se(s), "safe": float(np.mean(r["safe_pct"])),
             "success": float(np.mean(r["success_pct"])), "n": len(s), "scores": s.tolist()}
+        if "curve" in r:  # --curve: steps × seeds
+            points = np.asarray(r["curve"]["normalized_score"], np.float64)
+            cell["curve"] = {"steps": list(r["curve"]["steps"]),
+                             "mean": points.mean(axis=1).tolist(),
+                             "se": [_se(p) for p in points]}
     return cells
 
 
@@ -543,9 +593,42 @@ def _plot(args, cells: dict, bias: dict, lengths: dict) -> None:
                 ax.text(x, cap, "∞", ha="center", va="bottom")
     ax.set_xticks(range(len(base)), base, fontsize=8)
     ax.set_ylabel("estimated positive data bias (eq 8.3)")
-    ax.legend(fontsize=7)
+    if ax.get_legend_handles_labels()[0]:  # no estimate without all three wrong rewards
+        ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(args.out / "fig8_6.png", dpi=110)
+    plt.close(fig)
+
+
+def _plot_curves(args, cells: dict) -> None:
+    """``fig8_curves.png``: normalised score ± s.e. against gradient steps per dataset, one line
+    per learner and reward (cells trained with ``--curve``); BC's final score dashed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    datasets = list(dict.fromkeys(d for (d, _, _), c in cells.items() if "curve" in c))
+    if not datasets:
+        return
+    fig, axes = plt.subplots(1, len(datasets), figsize=(4.2 * len(datasets), 3.2),
+                             squeeze=False, sharey=True)
+    for ax, d in zip(axes[0], datasets, strict=True):
+        for (dd, lrn, r), c in cells.items():
+            if dd != d or "curve" not in c:
+                continue
+            x, m, e = (np.asarray(c["curve"][k], np.float64) for k in ("steps", "mean", "se"))
+            ax.plot(x, m, marker=".", label=f"{lrn} {r}")
+            ax.fill_between(x, m - e, m + e, alpha=0.2)
+        if (d, "BC", "none") in cells:
+            ax.axhline(cells[(d, "BC", "none")]["mean"], ls="--", c="k", lw=1,
+                       label="BC (final)")
+        ax.set_title(d, fontsize=9)
+        ax.set_xlabel("gradient steps")
+        ax.legend(fontsize=7)
+    axes[0][0].set_ylabel("normalised score")
+    fig.tight_layout()
+    fig.savefig(args.out / "fig8_curves.png", dpi=110)
     plt.close(fig)
 
 
@@ -619,6 +702,7 @@ def figures_stage(args) -> dict:
     (args.out / "safety.json").write_text(json.dumps(safety, indent=1))
     (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
     _plot(args, cells, bias, lengths)
+    _plot_curves(args, cells)
     print("\n".join(md) + "\n" + note, flush=True)
     print((args.out / "safety.md").read_text(), flush=True)
     return summary

@@ -285,3 +285,25 @@ def test_goal_deadline_datasets_are_named_and_keyed(tmp_path):
     assert "mixed-deadline" not in plain.datasets
     with pytest.raises(SystemExit):
         ch8.parse_args([*base, "--goal-deadline", "0"])
+
+
+def test_learning_curves_end_at_the_final_scores(tmp_path):
+    """``--curve``: one evaluation per chunk in every row, the last equal to the row's final
+    evaluation (same parameters, same episodes); the figures stage draws fig8_curves.png."""
+    argv = ["--out", str(tmp_path), "--recipes", "mixed", "--datasets", "mixed-full",
+            "--learners", "ATAC", "--rewards", "original", "zero", "--no-safety", "--scale",
+            "1", "--steps", "40", "--chunk", "20", "--hidden", "16", "16", "--seeds", "2",
+            "--eval-episodes", "2", "--reference-episodes", "4", "--batch", "32", "--curve"]
+    ch8.main(argv)
+    rows = [json.loads(x) for x in (tmp_path / "results.jsonl").read_text().splitlines()]
+    assert sorted(r["reward"] for r in rows) == ["original", "zero"]
+    for r in rows:
+        curve = r["curve"]
+        assert curve["steps"] == [20, 40]
+        assert np.asarray(curve["normalized_score"]).shape == (2, 2)  # steps × seeds
+        for k in ("normalized_score", "safe_pct", "success_pct"):
+            assert curve[k][-1] == r[k], k
+    assert (tmp_path / "fig8_curves.png").stat().st_size > 0
+    cells = ch8.load_cells(ch8.parse_args(argv))
+    c = cells[("mixed-full", "ATAC", "zero")]
+    assert c["curve"]["mean"][-1] == pytest.approx(c["mean"])
