@@ -10,7 +10,8 @@ baselines, scored in the MJX environment — a Table 7.3-style table.
 Stages (``--stage all`` runs them in order; each is resumable):
 
 1. **collect** — per environment a ``mixed`` dataset (random + noisy experts; :mod:`offline.
-   collect`, ``--scale`` episodes per source) and an ``expert`` dataset (``--scale`` episodes),
+   collect`, ``--scale`` episodes per source) and an ``expert`` dataset (``--expert-scale``
+   episodes, default ``--scale``),
    collected in the compiled graph and cached as checksummed files under ``OUT/data``.
 2. **train** — for every environment × scenario (``ILfO IL RLfO RL-expert RL-sample``) ×
    learner (:data:`offline.experiment.TABLE_LEARNERS`) that has data in that scenario
@@ -73,6 +74,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--steps", type=int, default=None, help="gradient steps per run")
     p.add_argument("--hidden", type=int, nargs="+", default=None, help="MLP hidden sizes")
     p.add_argument("--scale", type=int, default=None, help="episodes per dataset source")
+    p.add_argument("--expert-scale", type=int, default=None, metavar="EPISODES",
+                   help="episodes of the expert dataset (default: --scale, as §7.4.2's "
+                        "Meta-World protocol; §7.4.1's D4RL protocol gives a small expert set; "
+                        "cells get their own key)")
     p.add_argument("--eval-episodes", type=int, default=None)
     p.add_argument("--chunk", type=int, default=None, help="gradient steps per compiled call")
     add_checkpoint_option(p)
@@ -82,8 +87,18 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--data-seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=ROOT / "results" / "ch7")
     args = p.parse_args(argv)
-    return apply_preset(p, args, PRESETS[args.preset],
+    args = apply_preset(p, args, PRESETS[args.preset],
                         ("seeds", "steps", "scale", "eval_episodes", "chunk"))
+    if args.expert_scale is not None and args.expert_scale < 1:
+        p.error(f"--expert-scale must be >= 1 episode, got {args.expert_scale}")
+    if args.expert_scale == args.scale:
+        args.expert_scale = None  # the default: same data, same cell keys
+    return args
+
+
+def recipe_scale(args, recipe: str) -> int:
+    """Episodes per source of ``recipe``'s dataset: ``--expert-scale`` for the expert set."""
+    return args.expert_scale if recipe == "expert" and args.expert_scale else args.scale
 
 
 def data_path(out: Path, env: str, recipe: str, scale: int, seed: int) -> Path:
@@ -96,8 +111,9 @@ def collect_stage(args) -> None:
 
     for env in args.envs:
         for recipe in ("mixed", "expert"):
-            collect_cached(data_path(args.out, env, recipe, args.scale, args.data_seed), env,
-                           recipe, args.scale, args.data_seed, f"{env} {recipe}")
+            n = recipe_scale(args, recipe)
+            collect_cached(data_path(args.out, env, recipe, n, args.data_seed), env, recipe, n,
+                           args.data_seed, f"{env} {recipe}")
 
 
 def _cell_key(env: str, scenario: str, learner: str, args) -> str:
@@ -105,7 +121,8 @@ def _cell_key(env: str, scenario: str, learner: str, args) -> str:
 
     key = [env, scenario, learner, args.steps, list(args.hidden), args.seeds, args.scale,
            args.remove_terminals, args.eval_episodes]
-    return json.dumps(key + setting_key(args))
+    expert = [] if args.expert_scale is None else ["expert_scale", args.expert_scale]
+    return json.dumps(key + setting_key(args) + expert)
 
 
 def train_stage(args) -> None:
@@ -129,7 +146,8 @@ def train_stage(args) -> None:
     for env in args.envs:
         env_obj = collect.make_env(env)
         mixed, expert = (odata.check_environment(
-            odata.load(data_path(args.out, env, recipe, args.scale, args.data_seed)), env_obj,
+            odata.load(data_path(args.out, env, recipe, recipe_scale(args, recipe),
+                                 args.data_seed)), env_obj,
             name=recipe) for recipe in ("mixed", "expert"))
         evaluator = None
         for scenario in args.scenarios:
@@ -158,7 +176,7 @@ def train_stage(args) -> None:
                        "train_s": train_s, "eval_s": time.perf_counter() - t0 - train_s,
                        "device": jax.devices()[0].device_kind,
                        "dynamics_transitions": int(dyn.size),
-                       "reward_transitions": int(rd.size),
+                       "reward_transitions": int(rd.size), "expert_scale": args.expert_scale,
                        **setting_fields(args),
                        "reference": evaluator.reference, **ev}
                 results.parent.mkdir(parents=True, exist_ok=True)
@@ -186,9 +204,12 @@ def table_stage(args) -> dict:
     if not path.exists():
         raise SystemExit(f"no results at {path}: run --stage train first")
     rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-    rows = [r for r in rows if same_setting(r, args)]  # one table per learner setting
+    # One table per learner setting and expert-set size (rows without the field: default).
+    rows = [r for r in rows if same_setting(r, args)
+            and r.get("expert_scale") == args.expert_scale]
     if not rows:
-        settings = ", ".join(f"{k}={v}" for k, v in setting_fields(args).items())
+        settings = ", ".join(f"{k}={v}" for k, v in {**setting_fields(args),
+                                                     "expert_scale": args.expert_scale}.items())
         raise SystemExit(f"no results with {settings} in {path}")
     cells: dict = {}
     for r in rows:

@@ -625,6 +625,7 @@ def _plot_curves(args, cells: dict) -> None:
                        label="BC (final)")
         ax.set_title(d, fontsize=9)
         ax.set_xlabel("gradient steps")
+        ax.xaxis.set_major_formatter(lambda v, _: f"{v / 1000:g}k")
         ax.legend(fontsize=7)
     axes[0][0].set_ylabel("normalised score")
     fig.tight_layout()
