@@ -71,6 +71,8 @@ SCENARIOS = ("ILfO", "IL", "RLfO", "RL-expert", "RL-sample")
 #: The fields of :class:`RewardData` in pytree order.
 REWARD_FIELDS = ("observations", "rewards", "next_observations", "terminals", "timeouts",
                  "episode_ids")
+#: Scenarios whose data does not depend on the expert dataset (reward data from ``D_X``).
+EXPERT_FREE = ("RL-sample",)
 #: Default labelled fraction of RL-sample's episodes (thesis §7.4.2).
 RL_SAMPLE_FRACTION = 0.5
 

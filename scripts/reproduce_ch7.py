@@ -121,8 +121,17 @@ def _cell_key(env: str, scenario: str, learner: str, args) -> str:
 
     key = [env, scenario, learner, args.steps, list(args.hidden), args.seeds, args.scale,
            args.remove_terminals, args.eval_episodes]
-    expert = [] if args.expert_scale is None else ["expert_scale", args.expert_scale]
-    return json.dumps(key + setting_key(args) + expert)
+    return json.dumps(key + setting_key(args) + _expert_key(scenario, args))
+
+
+def _expert_key(scenario: str, args) -> list:
+    """``["expert_scale", N]`` for ``--expert-scale N`` in scenarios that read the expert set;
+    ``[]`` otherwise (RL-sample's cells are the same computation for every expert set)."""
+    from offline.scenarios import EXPERT_FREE
+
+    if args.expert_scale is None or scenario in EXPERT_FREE:
+        return []
+    return ["expert_scale", args.expert_scale]
 
 
 def train_stage(args) -> None:
@@ -176,7 +185,8 @@ def train_stage(args) -> None:
                        "train_s": train_s, "eval_s": time.perf_counter() - t0 - train_s,
                        "device": jax.devices()[0].device_kind,
                        "dynamics_transitions": int(dyn.size),
-                       "reward_transitions": int(rd.size), "expert_scale": args.expert_scale,
+                       "reward_transitions": int(rd.size),
+                       "expert_scale": (_expert_key(scenario, args) or [None, None])[1],
                        **setting_fields(args),
                        "reference": evaluator.reference, **ev}
                 results.parent.mkdir(parents=True, exist_ok=True)
@@ -198,15 +208,17 @@ def _fmt(mean: float, se: float, bold: bool) -> str:
 def table_stage(args) -> dict:
     """Write and print the Table 7.3-style table; return the per-cell summary."""
     from offline.experiment import TABLE_LEARNERS
+    from offline.scenarios import EXPERT_FREE
     from offline.sweep import same_setting, setting_fields
 
     path = args.out / "results.jsonl"
     if not path.exists():
         raise SystemExit(f"no results at {path}: run --stage train first")
     rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-    # One table per learner setting and expert-set size (rows without the field: default).
-    rows = [r for r in rows if same_setting(r, args)
-            and r.get("expert_scale") == args.expert_scale]
+    # One table per learner setting and expert-set size (rows without the field: default;
+    # RL-sample rows do not depend on the expert set).
+    rows = [r for r in rows if same_setting(r, args) and (
+        r.get("expert_scale") == args.expert_scale or r["scenario"] in EXPERT_FREE)]
     if not rows:
         settings = ", ".join(f"{k}={v}" for k, v in {**setting_fields(args),
                                                      "expert_scale": args.expert_scale}.items())

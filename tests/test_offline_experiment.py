@@ -178,8 +178,9 @@ def test_ch7_and_ch8_keep_standardised_observation_runs_apart(tmp_path):
 
 def test_ch7_expert_set_size_gets_its_own_data_cells_and_table(tmp_path):
     """``--expert-scale N``: the expert dataset has N episodes (its own cached file), cells get
-    their own key (equal to ``--scale`` is the default and keeps the keys), the table reads
-    only rows of that size, and N < 1 is refused."""
+    their own key (equal to ``--scale`` is the default and keeps the keys) except in RL-sample,
+    which does not read the expert set; the table reads only rows of that size (and RL-sample
+    rows), and N < 1 is refused."""
     from scripts import reproduce_ch7
 
     base = ["--out", str(tmp_path), "--scale", "4"]
@@ -188,20 +189,27 @@ def test_ch7_expert_set_size_gets_its_own_data_cells_and_table(tmp_path):
     assert same.expert_scale is None
     assert reproduce_ch7._cell_key("e", "ILfO", "BCO", same) == reproduce_ch7._cell_key(
         "e", "ILfO", "BCO", plain) != reproduce_ch7._cell_key("e", "ILfO", "BCO", small)
+    assert reproduce_ch7._cell_key("e", "RL-sample", "BCO", small) == reproduce_ch7._cell_key(
+        "e", "RL-sample", "BCO", plain)  # RL-sample does not read the expert set
     assert [reproduce_ch7.recipe_scale(small, r) for r in ("mixed", "expert")] == [4, 1]
     assert [reproduce_ch7.recipe_scale(plain, r) for r in ("mixed", "expert")] == [4, 4]
     with open(tmp_path / "results.jsonl", "w") as f:
-        for n, score in ((None, [1, 2]), (1, [5, 7])):
-            f.write(json.dumps({"env": "e", "scenario": "ILfO", "learner": "BC",
+        for sc, n, score in (("ILfO", None, [1, 2]), ("ILfO", 1, [5, 7]),
+                             ("RL-sample", None, [3, 3])):
+            f.write(json.dumps({"env": "e", "scenario": sc, "learner": "BC",
                                 "actor_rate": "published", "expert_scale": n,
                                 "normalized_score": score,
                                 "safe_pct": [100, 100]}) + "\n")
-    reproduce_ch7.table_stage(small)
+    assert reproduce_ch7.table_stage(small)["cells"] == 2  # ILfO and the shared RL-sample row
     assert "6.0 ± 1.0" in (tmp_path / "table.md").read_text()
     reproduce_ch7.table_stage(plain)
     assert "1.5 ± 0.5" in (tmp_path / "table.md").read_text()
+    other = reproduce_ch7.parse_args([*base, "--expert-scale", "3"])
+    assert reproduce_ch7.table_stage(other)["cells"] == 1  # the RL-sample row only
+    (tmp_path / "results.jsonl").write_text("\n".join(
+        x for x in (tmp_path / "results.jsonl").read_text().splitlines() if "RL-sample" not in x))
     with pytest.raises(SystemExit, match="expert_scale=3"):
-        reproduce_ch7.table_stage(reproduce_ch7.parse_args([*base, "--expert-scale", "3"]))
+        reproduce_ch7.table_stage(other)
     with pytest.raises(SystemExit):
         reproduce_ch7.parse_args([*base, "--expert-scale", "0"])
 
