@@ -153,8 +153,10 @@ class StrategyConfig:
     200 random Fourier features of length-scale 0.45, Cholesky metrics ``(128, 64)``, Adam with
     learning rate ``1e-4`` and weight decay ``1e-8``, ``ε = 0.02``; iteration counts are
     configurable (``flow_iterations`` for stage 1, ``metric_iterations`` for stage 2, which may be
-    0); ``batch_size`` (``None``: full batch, the thesis) draws a minibatch per step.
-    :meth:`cpu` is a preset that finishes in minutes on a 2-core CPU; :meth:`tiny` is for
+    0); ``batch_size`` (``None``: full batch, the thesis) draws a minibatch per step;
+    ``patience`` (``None``: off, the thesis) stops a stage early and keeps its best parameters.
+    :meth:`cpu` is a preset that finishes in minutes on a 2-core CPU; :meth:`reference` adds
+    the LASA reference code's clip and early stop to the thesis values; :meth:`tiny` is for
     tests. ``point`` is the control point used by ``"single_link"`` (0: the centre).
     """
 
@@ -175,6 +177,7 @@ class StrategyConfig:
     batch_size: int | None = None
     flow_iterations: int = 5000
     metric_iterations: int = 5000
+    patience: int | None = None
     point: int = 0
 
     def __post_init__(self) -> None:
@@ -199,6 +202,8 @@ class StrategyConfig:
             _check_int(self.batch_size, "batch_size", 1)
         _check_int(self.flow_iterations, "flow_iterations", 1)
         _check_int(self.metric_iterations, "metric_iterations", 0)
+        if self.patience is not None:
+            _check_int(self.patience, "patience", 1)
         _check_int(self.point, "point", 0)
         if self.point > 2:
             raise ValueError(f"StrategyConfig.point must be 0, 1 or 2 (a hand control point), "
@@ -219,6 +224,15 @@ class StrategyConfig:
                                     smooth_l1_beta=0.1, max_grad_norm=1.0, batch_size=256,
                                     flow_iterations=400, metric_iterations=200,
                                     weight_decay=1e-2)
+        base.update(overrides)
+        return cls(strategy=strategy, **base)
+
+    @classmethod
+    def reference(cls, strategy: str = "joint", **overrides: Any) -> StrategyConfig:
+        """The thesis sizes and rates with the training rules of the LASA reference code
+        (ANCHOR_FACTS §6), which §5.3.2 does not state: gradient-norm clip 0.1, early stop
+        after 250 iterations without a lower loss (the best parameters are kept), per stage."""
+        base: dict[str, Any] = dict(max_grad_norm=0.1, patience=250)
         base.update(overrides)
         return cls(strategy=strategy, **base)
 
@@ -439,26 +453,38 @@ def _optimizer(config: StrategyConfig, learning_rate: float) -> optax.GradientTr
 
 
 def _fit(loss: Callable[[Any, jax.Array], jax.Array], params: Any,
-         tx: optax.GradientTransformation, iterations: int, key: jax.Array
-         ) -> tuple[Any, jax.Array]:
+         tx: optax.GradientTransformation, iterations: int, key: jax.Array,
+         patience: int | None = None) -> tuple[Any, jax.Array]:
     """``iterations`` steps of ``tx`` on ``loss(params, key)`` in one ``lax.scan`` (a fresh key
     per step for minibatches); a step whose loss is not finite leaves the parameters unchanged.
-    Returns the final parameters and the loss before every step."""
+    With ``patience`` (the LASA reference code's early stop, ANCHOR_FACTS §6) the parameters
+    freeze once the loss has not improved on its lowest value for ``patience`` steps, and the
+    parameters of the lowest loss are returned. Returns the parameters and the loss before
+    every step."""
     if iterations == 0:
         return params, jnp.zeros((0,), jnp.float32)
 
+    def pick(flag, new, old):
+        return jax.tree.map(lambda a, b: jnp.where(flag, a, b), new, old)
+
     def step(carry, k):
-        p, opt = carry
+        p, opt, best_p, best, since, stopped = carry
         value, grads = jax.value_and_grad(loss)(p, k)
         updates, new_opt = tx.update(grads, opt, p)
-        ok = jnp.isfinite(value)
-        keep = lambda new, old: jax.tree.map(  # noqa: E731
-            lambda a, b: jnp.where(ok, a, b), new, old)
-        return (keep(optax.apply_updates(p, updates), p), keep(new_opt, opt)), value
+        improved = value < best  # False for a non-finite loss
+        best_p, best = pick(improved, p, best_p), jnp.where(improved, value, best)
+        since = jnp.where(improved, 0, since + 1)
+        move = jnp.logical_and(jnp.isfinite(value), ~stopped)
+        if patience is not None:
+            stopped = jnp.logical_or(stopped, since >= patience)
+        return (pick(move, optax.apply_updates(p, updates), p), pick(move, new_opt, opt),
+                best_p, best, since, stopped), value
 
-    (params, _), losses = jax.lax.scan(step, (params, tx.init(params)),
-                                       jax.random.split(key, iterations))
-    return params, losses
+    init = (params, tx.init(params), params, jnp.asarray(jnp.inf, jnp.float32),
+            jnp.zeros((), jnp.int32), jnp.zeros((), bool))
+    (last, _, best_params, _, _, _), losses = jax.lax.scan(step, init,
+                                                           jax.random.split(key, iterations))
+    return (last if patience is None else best_params), losses
 
 
 def _minibatch(samples: Samples, key: jax.Array, batch_size: int | None) -> Samples:
@@ -481,11 +507,12 @@ def _two_stage(config: StrategyConfig, params: Any, constants: Any, samples: Sam
 
     k1, k2 = jax.random.split(key)
     flow, flow_losses = _fit(lambda fp, k: loss({**params, "flow": fp}, k), params["flow"],
-                             _optimizer(config, config.learning_rate), config.flow_iterations, k1)
+                             _optimizer(config, config.learning_rate), config.flow_iterations, k1,
+                             config.patience)
     metric, metric_losses = _fit(lambda mp, k: loss({"flow": flow, "metric": mp}, k),
                                  params["metric"],
                                  _optimizer(config, config.metric_learning_rate),
-                                 config.metric_iterations, k2)
+                                 config.metric_iterations, k2, config.patience)
     return {"flow": flow, "metric": metric}, flow_losses, metric_losses
 
 

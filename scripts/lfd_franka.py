@@ -3,9 +3,9 @@
 Usage::
 
     python scripts/lfd_franka.py [--tasks door_reaching drawer_closing] \\
-        [--strategies cspace independent joint single_link two_step] [--preset cpu|thesis] \\
-        [--root /work/shared/data/franka_demos] [--out results/lfd_franka] \\
-        [--figures docs/figures] [--seed 0]
+        [--strategies cspace independent joint single_link two_step] \\
+        [--preset cpu|thesis|reference] [--root /work/shared/data/franka_demos] \\
+        [--out results/lfd_franka] [--figures docs/figures] [--seed 0]
     python scripts/lfd_franka.py --quick --out /tmp/x --figures /tmp/x     # seconds (tests)
 
 For each task (door reaching, drawer closing; 6 demonstrations each, thesis §5.2.3) and each
@@ -123,8 +123,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--tasks", nargs="+", default=list(franka_demos.TASKS),
                    choices=franka_demos.TASKS)
     p.add_argument("--strategies", nargs="+", default=list(L.STRATEGIES), choices=L.STRATEGIES)
-    p.add_argument("--preset", default="cpu", choices=("cpu", "thesis", "tiny"),
-                   help="StrategyConfig preset: cpu (default), thesis (full sizes, slow), tiny")
+    p.add_argument("--preset", default="cpu", choices=("cpu", "thesis", "reference", "tiny"),
+                   help="StrategyConfig preset: cpu (default), thesis (full sizes, slow), "
+                        "reference (thesis + the LASA code's clip 0.1 and early stop), tiny")
     p.add_argument("--flow-iterations", type=int, default=None, help="override stage 1 steps")
     p.add_argument("--metric-iterations", type=int, default=None, help="override stage 2 steps")
     p.add_argument("--dt", type=float, default=0.1, help="resampling step of the data (s)")

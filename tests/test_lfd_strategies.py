@@ -296,6 +296,35 @@ def test_execution_rollout_respects_joint_limits(trained, stacked):
     assert s[0].min() < 0 and s[-1].min() > 0
 
 
+def test_fit_early_stop_freezes_and_keeps_the_best_parameters():
+    """``_fit`` with ``patience``: Adam at a large rate overshoots the minimum of
+    ``(p - 3)²``; after ``patience`` steps without a lower loss the parameters freeze (the loss
+    trace goes flat) and the parameters of the lowest loss are returned. Without it, the last."""
+    import optax
+
+    def loss(p, _k):
+        return (p - 3.0) ** 2
+
+    tx = optax.adam(1.0)
+    key = jax.random.PRNGKey(0)
+    last, trace = L._fit(loss, jnp.float32(0.0), tx, 40, key)
+    best, trace_es = L._fit(loss, jnp.float32(0.0), tx, 40, key, patience=3)
+    trace, trace_es = np.asarray(trace), np.asarray(trace_es)
+    first_worse = int(np.argmax(np.diff(trace) > 0)) + 1   # Adam overshoots after ~3 steps
+    assert 0 < first_worse < 10
+    i_best = int(np.argmin(trace_es))
+    stop = i_best + 3 + 1    # patience steps without improvement, then frozen
+    np.testing.assert_array_equal(trace_es[:stop], trace[:stop])
+    assert np.all(trace_es[stop:] == trace_es[stop])          # frozen afterwards
+    assert float(loss(best, None)) == pytest.approx(trace_es[i_best])
+    assert np.ptp(trace[stop:]) > 0.01   # without patience it keeps moving
+    assert float(loss(last, None)) != pytest.approx(float(loss(best, None)))
+    with pytest.raises(ValueError, match="patience"):
+        L.StrategyConfig(patience=0)
+    ref = L.StrategyConfig.reference("joint")
+    assert (ref.max_grad_norm, ref.patience, ref.num_layers) == (0.1, 250, 10)
+
+
 def test_config_validation():
     with pytest.raises(ValueError, match="strategy must be one of"):
         L.StrategyConfig(strategy="bc")
