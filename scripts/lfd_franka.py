@@ -79,7 +79,8 @@ default (CPU preset, 2 tasks × 5 strategies × 6 folds) takes 5–8 minutes on 
 (5.1 min in session 8, 7.8 at load 1–2; ``--strategies two_step`` alone takes about 1 minute);
 ``--preset thesis`` uses the full model sizes and iteration counts (hours on a CPU; 387 s for
 2 tasks × 4 strategies as 8 processes side by side on one H100, and worse results than the CPU
-preset: BENCHMARKS.md).
+preset: BENCHMARKS.md); ``--preset reference`` adds the LASA reference code's gradient clip 0.1
+and 250-iteration early stop to it (362 s the same way; no better).
 """
 
 from __future__ import annotations
