@@ -219,6 +219,44 @@ def progress_printer(name: str, total_steps: int, t0: float) -> Callable[[Any, d
     return progress
 
 
+class LearningCurve:
+    """Learning curves of one program (``--curve``): after every chunk ``evaluate(state)``
+    scores its runs exactly as the last iterate is scored, returning one ``{metric: per-seed
+    values}`` dict per group of runs (a cell). A program resumed from a checkpoint has points
+    from the resumed step on. ``seconds`` is the time spent evaluating."""
+
+    def __init__(self, evaluate: Callable[[Any], list[dict[str, list[float]]]]):
+        self.evaluate = evaluate
+        self.steps: list[int] = []
+        self.points: list[list[dict[str, list[float]]]] = []
+        self.seconds = 0.0
+
+    def record(self, state: Any, steps: int) -> None:
+        """Evaluate ``state`` (after ``steps`` gradient steps) and keep the results."""
+        t0 = time.perf_counter()
+        self.points.append(self.evaluate(state))
+        self.steps.append(int(steps))
+        self.seconds += time.perf_counter() - t0
+        score = np.mean(self.points[-1][0]["normalized_score"])
+        print(f"    [curve] step {steps}: first cell's score {score:.1f}", flush=True)
+
+    def after(self, on_chunk: Callable[[Any, dict, int], None]
+              ) -> Callable[[Any, dict, int], None]:
+        """An ``on_chunk`` callback: ``on_chunk`` (e.g. :func:`progress_printer`), then
+        :meth:`record`."""
+        def both(state: Any, means: dict, steps: int) -> None:
+            on_chunk(state, means, steps)
+            self.record(state, steps)
+
+        return both
+
+    def groups(self) -> list[dict[str, list]]:
+        """Per group: ``{"steps": [...], <metric>: [[per-seed values] per step]}``."""
+        n = len(self.points[0]) if self.points else 0
+        return [{"steps": self.steps, **{k: [p[g][k] for p in self.points]
+                                         for k in self.points[0][g]}} for g in range(n)]
+
+
 def program_checkpoint_dir(root: Path | None, program: str) -> Path | None:
     """The checkpoint folder of one compiled program (a cell or, in chapter 8, the cells of
     several rewards) under ``root``: ``root / <crc32 of program>``; ``None`` when ``root`` is."""

@@ -21,7 +21,9 @@ Stages (``--stage all`` runs them in order; each is resumable):
    random 0, hand-designed expert 100; last iterate). One JSON line per cell in
    ``OUT/results.jsonl``; cells already there are skipped. With ``--checkpoints DIR`` every
    cell's state is also saved after each ``--chunk`` steps, and a cell interrupted (e.g. by a
-   time limit) continues from its last chunk when the command is run again.
+   time limit) continues from its last chunk when the command is run again. With ``--curve``
+   every seed is also scored after each chunk, the same way as its last iterate (the rows'
+   ``curve``: steps and per-seed results per step).
 3. **table** — ``OUT/table.md`` and ``OUT/table.csv`` (of the cells with the same
    ``--normalize-observations`` setting): mean ± standard error over seeds per
    cell; in each row the entries within 90 % of the best non-Oracle score are bold (thesis
@@ -80,6 +82,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         "cells get their own key)")
     p.add_argument("--eval-episodes", type=int, default=None)
     p.add_argument("--chunk", type=int, default=None, help="gradient steps per compiled call")
+    p.add_argument("--curve", action="store_true",
+                   help="also evaluate every seed after each --chunk steps: learning curves in "
+                        "the result rows (`curve`; evaluation only, training is unchanged)")
     add_checkpoint_option(p)
     add_learner_options(p)
     p.add_argument("--remove-terminals", action="store_true",
@@ -140,6 +145,7 @@ def train_stage(args) -> None:
     from offline import data as odata
     from offline.learner import actor_params
     from offline.sweep import (
+        LearningCurve,
         done_cells,
         program_checkpoint_dir,
         progress_printer,
@@ -173,16 +179,25 @@ def train_stage(args) -> None:
 
                 progress = progress_printer(f"{env} {scenario} {learner}", args.steps, t0)
 
+                def score(st, _t=trainer, _e=evaluator) -> list[dict[str, list[float]]]:
+                    ev = jax.vmap(lambda p: _e.evaluate(_t.act, p, jax.random.PRNGKey(10_000)))(
+                        actor_params(st))
+                    return [{k: np.asarray(v, np.float64).tolist() for k, v in ev.items()}]
+
+                curve = LearningCurve(score) if args.curve else None
                 ckpt = program_checkpoint_dir(args.checkpoints, cell)
-                state = train_program(trainer, keys, args.chunk, progress, ckpt, {"program": cell})
+                state = train_program(trainer, keys, args.chunk,
+                                      progress if curve is None else curve.after(progress),
+                                      ckpt, {"program": cell})
                 train_s = time.perf_counter() - t0
-                params = actor_params(state)
-                ev = jax.vmap(lambda p, _t=trainer, _e=evaluator: _e.evaluate(
-                    _t.act, p, jax.random.PRNGKey(10_000)))(params)
-                ev = {k: np.asarray(v, np.float64).tolist() for k, v in ev.items()}
+                ev = score(state)[0]
+                eval_s = time.perf_counter() - t0 - train_s
+                if curve is not None:  # its evaluations count as evaluation time
+                    ev["curve"] = curve.groups()[0]
+                    train_s, eval_s = train_s - curve.seconds, eval_s + curve.seconds
                 row = {"cell": cell, "env": env, "scenario": scenario, "learner": learner,
                        "seeds": args.seeds, "steps": args.steps, "hidden": list(args.hidden),
-                       "train_s": train_s, "eval_s": time.perf_counter() - t0 - train_s,
+                       "train_s": train_s, "eval_s": eval_s,
                        "device": jax.devices()[0].device_kind,
                        "dynamics_transitions": int(dyn.size),
                        "reward_transitions": int(rd.size),

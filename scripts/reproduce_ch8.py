@@ -286,35 +286,6 @@ class _Evaluation:
         return out
 
 
-class _Curve:
-    """Learning curves of one program: after every chunk each run's actor is evaluated like the
-    final iterate (same episodes, same key), and the per-seed results are kept per group of
-    ``seeds`` runs. A program resumed from a checkpoint has points from the resumed step on."""
-
-    def __init__(self, evaluation: _Evaluation, act: Callable, seeds: int):
-        from offline import sweep
-
-        self.evaluation, self.act, self.seeds = evaluation, act, seeds
-        self.params = sweep.run_actor_params
-        self.steps: list[int] = []
-        self.points: list[list[dict[str, list[float]]]] = []
-        self.seconds = 0.0
-
-    def record(self, state: Any, steps: int) -> None:
-        t0 = time.perf_counter()
-        self.points.append(self.evaluation(self.act, self.params(state), self.seeds))
-        self.steps.append(int(steps))
-        self.seconds += time.perf_counter() - t0
-        score = np.mean(self.points[-1][0]["normalized_score"])
-        print(f"    [curve] step {steps}: first group's score {score:.1f}", flush=True)
-
-    def groups(self) -> list[dict[str, list]]:
-        """Per group: ``{"steps": [...], <metric>: [[per-seed values] per step]}``."""
-        n = len(self.points[0]) if self.points else 0
-        return [{"steps": self.steps, **{k: [p[g][k] for p in self.points]
-                                         for k in self.points[0][g]}} for g in range(n)]
-
-
 def train_stage(args) -> None:
     """Train and evaluate every missing cell; append one JSON line per cell."""
     from offline import experiment, sweep
@@ -350,12 +321,10 @@ def train_stage(args) -> None:
             runs = keys[0].shape[0] if isinstance(keys, tuple) else keys.shape[0]
 
             progress = sweep.progress_printer(f"{name} {learner} ({runs} runs)", args.steps, t0)
-            curve = _Curve(evaluation, trainer.act, args.seeds) if args.curve else None
-
-            def on_chunk(st, means, done, _progress=progress, _curve=curve):
-                _progress(st, means, done)
-                if _curve is not None:
-                    _curve.record(st, done)
+            curve = sweep.LearningCurve(
+                lambda st, _act=trainer.act, _ev=evaluation: _ev(
+                    _act, sweep.run_actor_params(st), args.seeds)) if args.curve else None
+            on_chunk = progress if curve is None else curve.after(progress)
 
             program = json.dumps([_cell_key(name, learner, r, args) for r in cell_rewards])
             ckpt = sweep.program_checkpoint_dir(args.checkpoints, program)

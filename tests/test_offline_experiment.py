@@ -214,6 +214,22 @@ def test_ch7_expert_set_size_gets_its_own_data_cells_and_table(tmp_path):
         reproduce_ch7.parse_args([*base, "--expert-scale", "0"])
 
 
+def test_ch7_learning_curves_end_at_the_final_scores(tmp_path):
+    """``reproduce_ch7.py --curve``: one evaluation per chunk in the row, the last equal to the
+    row's final evaluation (same parameters, same episodes)."""
+    from scripts import reproduce_ch7
+
+    reproduce_ch7.main(["--out", str(tmp_path), "--scale", "1", "--steps", "40", "--chunk",
+                        "20", "--hidden", "16", "16", "--seeds", "2", "--eval-episodes", "2",
+                        "--scenarios", "ILfO", "--learners", "BC", "--curve"])
+    (row,) = [json.loads(x) for x in (tmp_path / "results.jsonl").read_text().splitlines()]
+    assert row["curve"]["steps"] == [20, 40]
+    assert np.asarray(row["curve"]["normalized_score"]).shape == (2, 2)  # steps × seeds
+    for k in ("normalized_score", "safe_pct", "success_pct"):
+        assert row["curve"][k][-1] == row[k], k
+    assert row["eval_s"] > 0 and row["train_s"] > 0
+
+
 def test_train_offline_refuses_bad_arguments(tmp_path, capsys):
     from scripts import train_offline
 
