@@ -192,7 +192,7 @@ def train_stage(args) -> None:
                 train_s = time.perf_counter() - t0
                 ev = score(state)[0]
                 eval_s = time.perf_counter() - t0 - train_s
-                if curve is not None:  # its evaluations count as evaluation time
+                if curve is not None and curve.steps:  # none when resumed at the last chunk
                     ev["curve"] = curve.groups()[0]
                     train_s, eval_s = train_s - curve.seconds, eval_s + curve.seconds
                 row = {"cell": cell, "env": env, "scenario": scenario, "learner": learner,

@@ -334,7 +334,7 @@ def train_stage(args) -> None:
             train_s = time.perf_counter() - t0
             groups = evaluation(trainer.act, sweep.run_actor_params(state), args.seeds)
             eval_s = time.perf_counter() - t0 - train_s
-            if curve is not None:  # its evaluations count as evaluation time
+            if curve is not None and curve.steps:  # none when resumed at the last chunk
                 groups = [{**ev, "curve": c} for ev, c in zip(groups, curve.groups(), strict=True)]
                 train_s, eval_s = train_s - curve.seconds, eval_s + curve.seconds
             results.parent.mkdir(parents=True, exist_ok=True)

@@ -307,3 +307,21 @@ def test_learning_curves_end_at_the_final_scores(tmp_path):
     cells = ch8.load_cells(ch8.parse_args(argv))
     c = cells[("mixed-full", "ATAC", "zero")]
     assert c["curve"]["mean"][-1] == pytest.approx(c["mean"])
+
+
+def test_learning_curve_keeps_points_per_cell():
+    """``sweep.LearningCurve``: ``after`` runs the wrapped callback, then records; ``groups``
+    gives per cell the steps and each metric's per-seed values per step; no points (a program
+    resumed at its last chunk) give no groups."""
+    results = iter([[{"normalized_score": [1.0, 2.0]}, {"normalized_score": [3.0, 4.0]}],
+                    [{"normalized_score": [5.0, 6.0]}, {"normalized_score": [7.0, 8.0]}]])
+    curve = sweep.LearningCurve(lambda state: next(results))
+    assert curve.groups() == []
+    seen = []
+    on_chunk = curve.after(lambda state, means, steps: seen.append(steps))
+    on_chunk(None, {}, 10)
+    on_chunk(None, {}, 20)
+    assert seen == [10, 20] and curve.seconds >= 0
+    assert curve.groups() == [
+        {"steps": [10, 20], "normalized_score": [[1.0, 2.0], [5.0, 6.0]]},
+        {"steps": [10, 20], "normalized_score": [[3.0, 4.0], [7.0, 8.0]]}]
