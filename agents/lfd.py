@@ -105,6 +105,7 @@ __all__ = [
     "TrainState",
     "Trainer",
     "arrival_steps",
+    "early_stop_update",
     "fast_cos",
     "fast_sin",
     "finite_difference_velocities",
@@ -537,6 +538,24 @@ def _smooth_l1(err: jax.Array, beta: float) -> jax.Array:
     return jnp.where(a < beta, 0.5 * err * err / beta, a - 0.5 * beta)
 
 
+def early_stop_update(loss: jax.Array, params: Any, best_params: Any, best_loss: jax.Array,
+                      since_best: jax.Array, stopped: jax.Array, patience: int | None
+                      ) -> tuple[jax.Array, Any, jax.Array, jax.Array, jax.Array, jax.Array]:
+    """One step of the early-stop rule of the LASA reference code (ANCHOR_FACTS §6), shared by
+    :func:`make_train` and :mod:`agents.lfd_strategies`: ``loss`` of ``params`` improves on
+    ``best_loss`` (never when not finite) → new best; ``move`` says whether this step's update
+    may be applied (finite loss, not yet stopped); after ``patience`` steps without improvement
+    ``stopped`` turns True (never with ``patience=None``). Returns ``(improved, best_params,
+    best_loss, since_best, move, stopped)``."""
+    improved = loss < best_loss
+    best_params = jax.tree.map(lambda a, b: jnp.where(improved, a, b), params, best_params)
+    since = jnp.where(improved, 0, since_best + 1)
+    move = jnp.logical_and(jnp.isfinite(loss), ~stopped)
+    if patience is not None:
+        stopped = jnp.logical_or(stopped, since >= patience)
+    return improved, best_params, jnp.where(improved, loss, best_loss), since, move, stopped
+
+
 def make_train(config: LfdConfig | None = None, dim: int = 2) -> Trainer:
     """Build the training functions of a :class:`FlowField` for ``config`` (module docstring)."""
     config = LfdConfig() if config is None else config
@@ -590,23 +609,17 @@ def make_train(config: LfdConfig | None = None, dim: int = 2) -> Trainer:
             idx = jax.random.choice(sub, x.shape[0], (config.batch_size,), replace=False)
             x, v = x[idx], v[idx]
         loss, grads = jax.value_and_grad(loss_fn)(state.params, state.constants, x, v)
-        improved = loss < state.best_loss          # False for a non-finite loss
-        pick = lambda new, old: jax.tree.map(  # noqa: E731
-            lambda a, b: jnp.where(improved, a, b), new, old)
-        best_params = pick(state.params, state.best_params)
+        improved, best_params, best_loss, since, move, stopped = early_stop_update(
+            loss, state.params, state.best_params, state.best_loss, state.since_best,
+            state.stopped, config.patience)
         updates, opt_state = tx.update(grads, state.opt_state, state.params)
         new_params = optax.apply_updates(state.params, updates)
-        move = jnp.logical_and(~state.stopped, jnp.isfinite(loss))
         keep = lambda new, old: jax.tree.map(  # noqa: E731
             lambda a, b: jnp.where(move, a, b), new, old)
-        since = jnp.where(improved, 0, state.since_best + 1)
-        stopped = state.stopped
-        if config.patience is not None:
-            stopped = jnp.logical_or(stopped, since >= config.patience)
         new = TrainState(
             step=state.step + 1, params=keep(new_params, state.params),
             constants=state.constants, opt_state=keep(opt_state, state.opt_state),
-            best_params=best_params, best_loss=jnp.where(improved, loss, state.best_loss),
+            best_params=best_params, best_loss=best_loss,
             best_step=jnp.where(improved, state.step, state.best_step), since_best=since,
             stopped=stopped, key=key)
         return new, loss

@@ -92,6 +92,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from agents.lfd import early_stop_update
 from mjxrmp import policies, rmp2
 from mjxrmp.data.franka_demos import StackedDemos, hand_points
 from mjxrmp.flows import CONSTANTS, EuclideanizingFlow
@@ -468,23 +469,21 @@ def _fit(loss: Callable[[Any, jax.Array], jax.Array], params: Any,
         return jax.tree.map(lambda a, b: jnp.where(flag, a, b), new, old)
 
     def step(carry, k):
-        p, opt, best_p, best, since, stopped = carry
+        p, opt, best = carry  # best: early-stop record (``()`` without patience)
         value, grads = jax.value_and_grad(loss)(p, k)
         updates, new_opt = tx.update(grads, opt, p)
-        improved = value < best  # False for a non-finite loss
-        best_p, best = pick(improved, p, best_p), jnp.where(improved, value, best)
-        since = jnp.where(improved, 0, since + 1)
-        move = jnp.logical_and(jnp.isfinite(value), ~stopped)
+        move = jnp.isfinite(value)
         if patience is not None:
-            stopped = jnp.logical_or(stopped, since >= patience)
+            _, *best, move, stopped = early_stop_update(value, p, *best, patience)
+            best = (*best, stopped)
         return (pick(move, optax.apply_updates(p, updates), p), pick(move, new_opt, opt),
-                best_p, best, since, stopped), value
+                best), value
 
-    init = (params, tx.init(params), params, jnp.asarray(jnp.inf, jnp.float32),
-            jnp.zeros((), jnp.int32), jnp.zeros((), bool))
-    (last, _, best_params, _, _, _), losses = jax.lax.scan(step, init,
-                                                           jax.random.split(key, iterations))
-    return (last if patience is None else best_params), losses
+    best = () if patience is None else (params, jnp.asarray(jnp.inf, jnp.float32),
+                                        jnp.zeros((), jnp.int32), jnp.zeros((), bool))
+    (last, _, best), losses = jax.lax.scan(step, (params, tx.init(params), best),
+                                           jax.random.split(key, iterations))
+    return (last if patience is None else best[0]), losses
 
 
 def _minibatch(samples: Samples, key: jax.Array, batch_size: int | None) -> Samples:

@@ -336,6 +336,7 @@ def run_stages(args: Any, stages: Mapping[str, Callable[[Any], Any]], header: st
 __all__ = [
     "ORIGINAL_SETTINGS",
     "REWARD_LEARNERS",
+    "LearningCurve",
     "RewardBatchedState",
     "add_checkpoint_option",
     "add_learner_options",

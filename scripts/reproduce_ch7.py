@@ -126,17 +126,16 @@ def _cell_key(env: str, scenario: str, learner: str, args) -> str:
 
     key = [env, scenario, learner, args.steps, list(args.hidden), args.seeds, args.scale,
            args.remove_terminals, args.eval_episodes]
-    return json.dumps(key + setting_key(args) + _expert_key(scenario, args))
+    n = _expert_scale(scenario, args)
+    return json.dumps(key + setting_key(args) + ([] if n is None else ["expert_scale", n]))
 
 
-def _expert_key(scenario: str, args) -> list:
-    """``["expert_scale", N]`` for ``--expert-scale N`` in scenarios that read the expert set;
-    ``[]`` otherwise (RL-sample's cells are the same computation for every expert set)."""
+def _expert_scale(scenario: str, args) -> int | None:
+    """``--expert-scale`` in scenarios that read the expert set; None for the default and for
+    RL-sample, whose cells are the same computation for every expert set."""
     from offline.scenarios import EXPERT_FREE
 
-    if args.expert_scale is None or scenario in EXPERT_FREE:
-        return []
-    return ["expert_scale", args.expert_scale]
+    return None if scenario in EXPERT_FREE else args.expert_scale
 
 
 def train_stage(args) -> None:
@@ -201,7 +200,7 @@ def train_stage(args) -> None:
                        "device": jax.devices()[0].device_kind,
                        "dynamics_transitions": int(dyn.size),
                        "reward_transitions": int(rd.size),
-                       "expert_scale": (_expert_key(scenario, args) or [None, None])[1],
+                       "expert_scale": _expert_scale(scenario, args),
                        **setting_fields(args),
                        "reference": evaluator.reference, **ev}
                 results.parent.mkdir(parents=True, exist_ok=True)
