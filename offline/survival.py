@@ -23,6 +23,13 @@ ANCHOR_FACTS §5).
   failed episode, absorbing as a collision), and keeps the episodes that arrive in time whole.
   Failures are then short and successes long: the length bias of §8.3.3 by construction, on
   top of (or instead of) the collision cut.
+* **The goal as the absorbing state** (§8.3.1 and §8.4.1's "goal-oriented problems have data
+  bias": successful trajectories end in a termination signal, i.e. unbounded length, failed
+  ones have a bounded length; footnote 4: terminals are removed where they mark failures):
+  :func:`absorbing_goal` ends every episode whose last next observation is within the success
+  radius with a **terminal** and every other episode with a **timeout**. Under pessimism a
+  successful episode's value chain is then anchored by its terminal, while a failed one runs
+  into a state with no data after it, which a pessimistic critic may value as low as it likes.
 * **Positive data bias** (eq 8.3): :func:`positive_data_bias`.
 """
 
@@ -210,6 +217,29 @@ def cut_before_goal(dataset: odata.Dataset, deadline: int, radius: float = 0.05
     return odata.validate(out.replace(terminals=terminals, timeouts=timeouts, metadata=meta))
 
 
+def absorbing_goal(dataset: odata.Dataset, radius: float = 0.05) -> odata.Dataset:
+    """``dataset`` with the goal as its only absorbing state (module docstring; thesis §8.3.1,
+    §8.4.1): the last transition of an episode whose last next observation is within ``radius``
+    of the goal (:func:`goal_distances`) becomes a terminal, the last transition of every other
+    episode a timeout, and no other transition ends an episode (collision terminals become
+    timeouts). Transitions are unchanged; host-side. Records ``metadata["absorbing_goal"] =
+    {"radius", "episodes_at_goal"}``."""
+    odata.validate(dataset)
+    if not (isinstance(radius, int | float) and not isinstance(radius, bool) and radius > 0):
+        raise ValueError(f"radius must be a positive number, got {radius!r}")
+    ids = np.asarray(dataset.episode_ids)
+    starts, lengths = odata.episode_bounds(ids)
+    last = np.zeros(ids.size, bool)
+    last[starts + lengths - 1] = True
+    at_goal = last & (goal_distances(dataset) < radius)
+    dtype = np.asarray(dataset.terminals).dtype
+    meta = dataset.metadata.updated(absorbing_goal={"radius": float(radius),
+                                                    "episodes_at_goal": int(at_goal.sum())})
+    return odata.validate(dataset.replace(terminals=at_goal.astype(dtype),
+                                          timeouts=(last & ~at_goal).astype(dtype),
+                                          metadata=meta))
+
+
 def positive_data_bias(scores: Mapping[str, float], *, optimal: float = 100.0) -> float:
     """The empirical positive-data-bias estimate of thesis eq 8.3 (Fig 8.6, ANCHOR_FACTS §5):
 
@@ -243,6 +273,7 @@ __all__ = [
     "REWARD_VARIANTS",
     "TERMINAL_MODES",
     "WRONG_REWARDS",
+    "absorbing_goal",
     "cut_before_goal",
     "goal_distances",
     "length_bias_statistics",

@@ -27,7 +27,13 @@ the full horizon (no length bias, like D4RL's halfcheetah in §8.4.1). With ``--
 also ``<recipe>-deadline``: the ``-cut`` data with every episode that has not reached the goal
 by its ``N``-th step cut there as a terminal (:func:`offline.survival.cut_before_goal`, the
 "timeout-before-goal" cut: a designed, strong length bias); it counts as length-biased in (a)
-and (b). With ``--safety`` (on by
+and (b). With ``--goal-deadline N`` also ``<recipe>-goal``: the same transitions with the goal
+as the only absorbing state (:func:`offline.survival.absorbing_goal`): an episode that ends
+within the success radius ends in a terminal, every other one (deadline cut, collision, or
+horizon) in a timeout — §8.4.1's goal-oriented length bias (successes unbounded, failures
+bounded), with the failures' terminals removed as in the thesis's footnote 4 on hopper and
+walker2d; the ``-deadline`` data instead makes the *failures* absorbing. Length-biased in (a)
+and (b) as well. With ``--safety`` (on by
 default) also ``<safety-dataset>-filtered``: :func:`offline.filtering.filter_collision_margin`
 of ``--safety-dataset`` (default ``mixed-full``, whose colliding episodes run on through the
 obstacles) with ``--margin`` (default the reward's δ = 0.05 m: exactly the transitions with a
@@ -63,7 +69,8 @@ Stages (``--stage all`` runs them in order; each is resumable):
        least BC's mean score + :data:`WELL_ABOVE` (10) points. Checked for ATAC and PSPI: it
        should hold on every ``-cut`` dataset and on no ``-full`` dataset;
    (b) the eq 8.3 estimate (from mean normalised scores, ``Ĵ* = 100``) of ATAC and PSPI is
-       larger on ``<recipe>-cut`` than on ``<recipe>-full`` (∞ > any finite value);
+       larger on ``<recipe>-cut`` (and ``-deadline``, ``-goal``) than on ``<recipe>-full`` (∞ >
+       any finite value);
    (safety) on the filtered dataset, the collision rate (100 − safe %) of ATAC and PSPI is
        below that of BC on ``--safety-dataset`` and below their own on the unfiltered data.
 """
@@ -174,10 +181,14 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 # Datasets
 
 
+#: Dataset modes derived from the collision-cut data with a goal deadline (``--goal-deadline``).
+DEADLINE_MODES = ("deadline", "goal")
+
+
 def base_datasets(recipes: Sequence[str], goal_deadline: int | None = None) -> list[str]:
-    """``<recipe>-cut`` and ``<recipe>-full`` for every recipe, and ``<recipe>-deadline``
-    when ``goal_deadline`` is given."""
-    modes = ("cut", "full") + (("deadline",) if goal_deadline else ())
+    """``<recipe>-cut`` and ``<recipe>-full`` for every recipe, and ``<recipe>-deadline`` and
+    ``<recipe>-goal`` when ``goal_deadline`` is given."""
+    modes = ("cut", "full") + (DEADLINE_MODES if goal_deadline else ())
     return [f"{r}-{mode}" for r in recipes for mode in modes]
 
 
@@ -186,17 +197,17 @@ def filtered_name(args) -> str:
 
 
 def split_name(name: str) -> tuple[str, bool, bool]:
-    """``(recipe, cut_at_collision, filtered)`` of a dataset name (a ``-deadline`` dataset is
-    derived from the collision-cut one)."""
+    """``(recipe, cut_at_collision, filtered)`` of a dataset name (``-deadline`` and ``-goal``
+    datasets are derived from the collision-cut one)."""
     filtered = name.endswith("-filtered")
     stem = name.removesuffix("-filtered")
     recipe, mode = stem.rsplit("-", 1)
-    return recipe, mode in ("cut", "deadline"), filtered
+    return recipe, mode in ("cut", *DEADLINE_MODES), filtered
 
 
 def is_deadline(name: str) -> bool:
-    """Whether ``name`` is a goal-deadline dataset (``<recipe>-deadline``)."""
-    return name.removesuffix("-filtered").endswith("-deadline")
+    """Whether ``name`` is cut at a goal deadline (``<recipe>-deadline`` or ``<recipe>-goal``)."""
+    return name.removesuffix("-filtered").rsplit("-", 1)[-1] in DEADLINE_MODES
 
 
 def data_path(args, recipe: str, cut: bool) -> Path:
@@ -220,7 +231,7 @@ def load_dataset(args, name: str):
     from offline import collect
     from offline import data as odata
     from offline.filtering import filter_collision_margin
-    from offline.survival import cut_before_goal
+    from offline.survival import absorbing_goal, cut_before_goal
 
     recipe, cut, filtered = split_name(name)
     path = data_path(args, recipe, cut)
@@ -230,6 +241,8 @@ def load_dataset(args, name: str):
     ds = odata.check_environment(odata.load(path), env, name=name)
     if is_deadline(name):
         ds = cut_before_goal(ds, args.goal_deadline, radius=float(env.success_radius))
+    if name.removesuffix("-filtered").endswith("-goal"):
+        ds = absorbing_goal(ds, radius=float(env.success_radius))
     return filter_collision_margin(ds, ENV, args.margin) if filtered else ds
 
 
@@ -434,7 +447,8 @@ def acceptance(args, cells: dict, bias: dict, lengths: dict) -> dict:
     for recipe in args.recipes:
         for lrn in PESSIMISTIC:
             full = bias.get((f"{recipe}-full", lrn))
-            for mode, name in (("cut", recipe), ("deadline", f"{recipe}-deadline")):
+            for mode in ("cut", *DEADLINE_MODES):
+                name = recipe if mode == "cut" else f"{recipe}-{mode}"
                 biased_bias = bias.get((f"{recipe}-{mode}", lrn))
                 if biased_bias is not None and full is not None:
                     larger[f"{name}/{lrn}"] = bool(biased_bias > full)
@@ -449,7 +463,7 @@ def acceptance(args, cells: dict, bias: dict, lengths: dict) -> dict:
         "a_length_biased_well_above_bc": bool(all(biased)) if biased else None,
         "a_unbiased_not_well_above_bc": (not any(unbiased)) if unbiased else None,
         "rule_b": "eq 8.3 estimate (mean normalised scores, J* = 100) on <recipe>-cut (and "
-                  "<recipe>-deadline) > on <recipe>-full (inf > any finite value)",
+                  "<recipe>-deadline, <recipe>-goal) > on <recipe>-full (inf > any finite value)",
         "bias_estimate": {f"{d}/{lrn}": _json_float(v) for (d, lrn), v in sorted(bias.items())},
         "bias_larger_on_length_biased": larger,
         "b_bias_larger_on_length_biased": bool(all(larger.values())) if larger else None,
@@ -661,6 +675,14 @@ def figures_stage(args) -> dict:
             f"{summary['bias_larger_on_length_biased']}\n")
     (args.out / "table.md").write_text("\n".join(md) + "\n" + note)
     (args.out / "table.csv").write_text("\n".join(csv) + "\n")
+    (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
+    _plot(args, cells, bias, lengths)
+    _plot_curves(args, cells)
+    print("\n".join(md) + "\n" + note, flush=True)
+    if not safety["rows"]:
+        print("[figures] no filtered-data or safety-dataset cells: safety.md is left out",
+              flush=True)
+        return summary
     srows = ["| policy | score | collision % | success % |", "|---|---|---|---|"]
     srows += [f"| {k} | {v['score']:.1f} ± {v['score_se']:.1f} | {v['collision_pct']:.1f} | "
               f"{v['success_pct']:.1f} |" for k, v in safety["rows"].items()]
@@ -670,10 +692,6 @@ def figures_stage(args) -> dict:
         f"{safety['margin_m']} m.\n\n" + "\n".join(srows) +
         f"\n\nRule: {safety['rule']}. Checks: {safety['checks']} → {safety['all']}\n")
     (args.out / "safety.json").write_text(json.dumps(safety, indent=1))
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
-    _plot(args, cells, bias, lengths)
-    _plot_curves(args, cells)
-    print("\n".join(md) + "\n" + note, flush=True)
     print((args.out / "safety.md").read_text(), flush=True)
     return summary
 

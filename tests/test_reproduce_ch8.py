@@ -270,19 +270,23 @@ def test_cpu_smoke_end_to_end(tmp_path):
 
 
 def test_goal_deadline_datasets_are_named_and_keyed(tmp_path):
-    """``--goal-deadline N`` adds ``<recipe>-deadline`` (derived from the cut data, counted as
-    length-biased), whose cells carry N in their key; other cells keep their keys."""
+    """``--goal-deadline N`` adds ``<recipe>-deadline`` and ``<recipe>-goal`` (derived from the
+    cut data, counted as length-biased), whose cells carry N in their key; other cells keep
+    their keys."""
     base = ["--out", str(tmp_path), "--recipes", "mixed", "--scale", "1"]
     args = ch8.parse_args([*base, "--goal-deadline", "200"])
-    assert args.datasets == ["mixed-cut", "mixed-full", "mixed-deadline", "mixed-full-filtered"]
-    assert ch8.split_name("mixed-deadline") == ("mixed", True, False)
-    assert ch8.is_deadline("mixed-deadline") and not ch8.is_deadline("mixed-cut")
-    key = json.loads(ch8._cell_key("mixed-deadline", "ATAC", "zero", args))
-    assert key[key.index("goal_deadline") + 1] == 200
+    assert args.datasets == ["mixed-cut", "mixed-full", "mixed-deadline", "mixed-goal",
+                             "mixed-full-filtered"]
+    for name in ("mixed-deadline", "mixed-goal"):
+        assert ch8.split_name(name) == ("mixed", True, False)
+        assert ch8.is_deadline(name)
+        key = json.loads(ch8._cell_key(name, "ATAC", "zero", args))
+        assert key[0] == name and key[key.index("goal_deadline") + 1] == 200
+    assert not ch8.is_deadline("mixed-cut") and not ch8.is_deadline("mixed-full")
     plain = ch8.parse_args(base)
     assert ch8._cell_key("mixed-cut", "ATAC", "zero", args) == ch8._cell_key(
         "mixed-cut", "ATAC", "zero", plain)
-    assert "mixed-deadline" not in plain.datasets
+    assert "mixed-deadline" not in plain.datasets and "mixed-goal" not in plain.datasets
     with pytest.raises(SystemExit):
         ch8.parse_args([*base, "--goal-deadline", "0"])
 

@@ -251,6 +251,37 @@ def test_cut_before_goal_hand_computed():
         sv.cut_before_goal(ds.replace(metadata=odata.Metadata({})), deadline=3)
 
 
+def test_absorbing_goal_hand_computed():
+    # Episode 10 ends at the goal (0.04 < 0.05): its last transition becomes a terminal. 11 ends
+    # away from it with a timeout, 13 with a collision terminal: both end with timeouts. 12
+    # passes the goal (0.01) but leaves it (0.2): a timeout. Nothing else changes.
+    ds = _goal_dataset([[0.5, 0.2, 0.04], [0.5, 0.4], [0.3, 0.01, 0.2], [0.5, 0.4]],
+                       ["timeout", "timeout", "timeout", "terminal"])
+    out = sv.absorbing_goal(ds)
+    per, _ = odata.episode_statistics(out)
+    assert per.lengths.tolist() == [3, 2, 3, 2]
+    assert per.terminated.tolist() == [True, False, False, False]
+    assert per.timed_out.tolist() == [False, True, True, True]
+    assert np.asarray(out.terminals).tolist() == [False, False, True] + [False] * 7
+    assert out.metadata["absorbing_goal"] == {"radius": 0.05, "episodes_at_goal": 1}
+    for field in ("observations", "actions", "rewards", "next_observations", "episode_ids"):
+        np.testing.assert_array_equal(np.asarray(getattr(out, field)),
+                                      np.asarray(getattr(ds, field)))
+    # The -goal data of reproduce_ch8: after the deadline cut, the failures' terminals move to
+    # the successes (same transitions, only the end flags differ).
+    # Deadline 2 cuts episode 10 (not yet at the goal) with a terminal, which becomes a
+    # timeout; deadline 3 cuts nothing and episode 10 keeps its goal terminal.
+    cut = sv.cut_before_goal(ds, deadline=2)
+    assert odata.episode_statistics(cut)[0].terminated.tolist() == [True, False, False, True]
+    assert not odata.episode_statistics(sv.absorbing_goal(cut))[0].terminated.any()
+    kept = sv.absorbing_goal(sv.cut_before_goal(ds, deadline=3))
+    assert odata.episode_statistics(kept)[0].terminated.tolist() == [True, False, False, False]
+    assert sv.absorbing_goal(ds, radius=0.3).metadata["absorbing_goal"]["episodes_at_goal"] == 2
+    for bad in (0.0, -1.0, True):
+        with pytest.raises(ValueError, match="radius must be a positive"):
+            sv.absorbing_goal(ds, radius=bad)
+
+
 def test_goal_deadline_gives_collected_data_a_length_bias(collected):
     # On real env3 data (uncut at collisions), the goal distance from the observation is the
     # environment's, and a deadline makes the failures short.
