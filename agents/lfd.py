@@ -111,6 +111,7 @@ __all__ = [
     "finite_difference_velocities",
     "latent_step",
     "make_train",
+    "regularised_adam",
     "rollout",
     "train_batched",
 ]
@@ -556,6 +557,19 @@ def early_stop_update(loss: jax.Array, params: Any, best_params: Any, best_loss:
     return improved, best_params, jnp.where(improved, loss, best_loss), since, move, stopped
 
 
+def regularised_adam(learning_rate: float, weight_decay: float,
+                     max_grad_norm: float | None) -> optax.GradientTransformation:
+    """The LfD trainers' optimiser: global-norm gradient clipping (when ``max_grad_norm`` is
+    given), then decoupled weight decay (when ``weight_decay > 0``), then Adam."""
+    chain = []
+    if max_grad_norm is not None:
+        chain.append(optax.clip_by_global_norm(max_grad_norm))
+    if weight_decay > 0:
+        chain.append(optax.add_decayed_weights(weight_decay))
+    chain.append(optax.adam(learning_rate))
+    return optax.chain(*chain)
+
+
 def make_train(config: LfdConfig | None = None, dim: int = 2) -> Trainer:
     """Build the training functions of a :class:`FlowField` for ``config`` (module docstring)."""
     config = LfdConfig() if config is None else config
@@ -563,13 +577,7 @@ def make_train(config: LfdConfig | None = None, dim: int = 2) -> Trainer:
         raise TypeError(f"config must be an LfdConfig, got {type(config)}")
     field = FlowField(dim=dim, config=config)
 
-    chain = []
-    if config.max_grad_norm is not None:
-        chain.append(optax.clip_by_global_norm(config.max_grad_norm))
-    if config.weight_decay > 0:
-        chain.append(optax.add_decayed_weights(config.weight_decay))
-    chain.append(optax.adam(config.learning_rate))
-    tx = optax.chain(*chain)
+    tx = regularised_adam(config.learning_rate, config.weight_decay, config.max_grad_norm)
 
     def loss_fn(params, constants, x, v):
         pred = field.velocity({"params": params, CONSTANTS: constants}, x)

@@ -92,7 +92,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from agents.lfd import early_stop_update
+from agents.lfd import early_stop_update, regularised_adam
 from mjxrmp import policies, rmp2
 from mjxrmp.data.franka_demos import StackedDemos, hand_points
 from mjxrmp.flows import CONSTANTS, EuclideanizingFlow
@@ -444,13 +444,7 @@ def strategy_loss(config: StrategyConfig, params: Any, constants: Any, samples: 
 
 
 def _optimizer(config: StrategyConfig, learning_rate: float) -> optax.GradientTransformation:
-    chain = []
-    if config.max_grad_norm is not None:
-        chain.append(optax.clip_by_global_norm(config.max_grad_norm))
-    if config.weight_decay > 0:
-        chain.append(optax.add_decayed_weights(config.weight_decay))
-    chain.append(optax.adam(learning_rate))
-    return optax.chain(*chain)
+    return regularised_adam(learning_rate, config.weight_decay, config.max_grad_norm)
 
 
 def _fit(loss: Callable[[Any, jax.Array], jax.Array], params: Any,
