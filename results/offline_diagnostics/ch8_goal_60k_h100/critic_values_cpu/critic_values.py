@@ -1,20 +1,30 @@
 """Does the pessimistic critic separate goal-anchored episodes from failures (zero reward)?
 
-Usage, from the repository root: ``python <this file> STEPS DATA.npz``, with DATA the
-medium-replay collision-cut data of
+Usage, from the repository root: ``python <this file> --cut CUT.npz [--full FULL.npz] ...``
+with the medium-replay data of ``scripts/reproduce_ch8.py --stage collect`` (``CUT``: the
+collision-cut file ``OUT/data/three_link-env3_medium-replay_cut_x<S>_s0.npz``, ``FULL``: the
+``_full_`` one). The CPU run in ``output.jsonl`` next to this file:
 
     python scripts/reproduce_ch8.py --recipes medium-replay --goal-deadline 350 --scale 20 \
-        --stage collect --out OUT      # OUT/data/three_link-env3_medium-replay_cut_x20_s0.npz
+        --stage collect --out OUT
+    python <this file> --cut OUT/data/three_link-env3_medium-replay_cut_x20_s0.npz \
+        --steps 20000 --chunk 20000
 
-It trains PSPI (absolute pessimism) and ATAC (relative) with the zero reward on the ``-goal``
-and ``-deadline`` versions of that data (one seed, 2 x 128 critics, NN-RESIDUAL actor, half the
-steps BC warm start, scaled actor rate) and prints one JSON line per run: the min-over-critics
-Q(s, a) of the data transitions, averaged per episode outcome (success: the episode reached
-the goal by the deadline and was kept whole) and position (first 50, last 10 transitions).
+For each ``--datasets`` entry (``goal``, ``deadline``: the cut data after
+:func:`offline.survival.cut_before_goal` at 350 steps, with the goal or the failures absorbing;
+``full``: the uncut data) and each ``--learners`` entry (PSPI: absolute pessimism, ATAC:
+relative) it trains one program of ``--seeds`` seeds with the **zero** reward (NN-RESIDUAL
+actor, ``--warmstart`` of the steps BC warm start, ``--actor-rate``). After every ``--chunk``
+steps it prints one JSON line: the min-over-critics Q(s, a) of the data transitions averaged per
+episode outcome (success: the episode reaches the goal within its first 350 transitions) and
+position (all, first 50, last 10 transitions of each episode), and with ``--eval-episodes N``
+the normalised score of the policies (thesis §7.4 normalisation, ``offline.evaluate``).
 """
 
+import argparse
 import json
 import sys
+import time
 
 sys.path.insert(0, ".")
 
@@ -28,43 +38,103 @@ import numpy as np
 from offline import atac, collect, experiment, survival
 from offline import data as odata
 from offline.networks import QEnsemble
+from offline.sweep import run_actor_params
 
-HIDDEN = (128, 128)
+ENV = "three_link/env3"
+DEADLINE = 350
+PESSIMISM = {"PSPI": "absolute", "ATAC": "relative"}
 
 
-def main(steps: int, path: str) -> None:
-    env = collect.make_env("three_link/env3")
+def parse_args() -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--cut", required=True, help="collision-cut medium-replay data (.npz)")
+    p.add_argument("--full", default=None, help="uncut data (.npz), for --datasets full")
+    p.add_argument("--datasets", nargs="+", default=["goal", "deadline"],
+                   choices=["goal", "deadline", "full"])
+    p.add_argument("--learners", nargs="+", default=["PSPI", "ATAC"], choices=list(PESSIMISM))
+    p.add_argument("--steps", type=int, default=20000)
+    p.add_argument("--chunk", type=int, default=20000)
+    p.add_argument("--hidden", type=int, nargs="+", default=[128, 128])
+    p.add_argument("--seeds", type=int, default=1)
+    p.add_argument("--warmstart", type=float, default=0.5)
+    p.add_argument("--actor-rate", default="scaled", choices=experiment.ACTOR_RATES)
+    p.add_argument("--eval-episodes", type=int, default=0)
+    args = p.parse_args()
+    if "full" in args.datasets and args.full is None:
+        p.error("--datasets full needs --full FULL.npz")
+    return args
+
+
+def arrived(ds: odata.Dataset, radius: float) -> np.ndarray:
+    """Per transition: whether its episode reaches the goal within its first DEADLINE steps."""
+    _, lengths = odata.episode_bounds(np.asarray(ds.episode_ids))
+    position = np.concatenate([np.arange(n) for n in lengths])
+    early = (survival.goal_distances(ds) < radius) & (position < DEADLINE)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    return np.repeat(np.logical_or.reduceat(early, starts), lengths)
+
+
+def main() -> None:
+    args = parse_args()
+    env = collect.make_env(ENV)
     radius = float(env.success_radius)
-    cut = odata.check_environment(odata.load(path), env, name="data")
-    deadline = survival.cut_before_goal(cut, 350, radius=radius)
-    # Kept whole = arrived by the deadline; the same episodes in both versions.
-    whole = ~odata.episode_statistics(deadline)[0].terminated
-    versions = {"goal": survival.absorbing_goal(deadline, radius=radius), "deadline": deadline}
-    _, lengths = odata.episode_bounds(np.asarray(deadline.episode_ids))
-    success = np.repeat(whole, lengths)
+    cut = odata.check_environment(odata.load(args.cut), env, name="cut")
+    deadline = survival.cut_before_goal(cut, DEADLINE, radius=radius)
+    versions = {"goal": lambda: survival.absorbing_goal(deadline, radius=radius),
+                "deadline": lambda: deadline,
+                "full": lambda: odata.check_environment(odata.load(args.full), env, name="full")}
+    evaluator = None
+    if args.eval_episodes:
+        from offline import evaluate
+
+        evaluator = evaluate.make_evaluator(ENV, args.eval_episodes)
+    budget = experiment.Budget(steps=args.steps, hidden=tuple(args.hidden), batch=256,
+                               actor="nn_residual", warmstart=args.warmstart,
+                               actor_rate=args.actor_rate)
+    for name in args.datasets:
+        ds = versions[name]()
+        for learner in args.learners:
+            train(args, name, ds, learner, budget, evaluator, radius)
+
+
+def train(args: argparse.Namespace, name: str, ds: odata.Dataset, learner: str,
+          budget: experiment.Budget, evaluator, radius: float) -> None:
+    """One zero-reward program of ``learner`` on ``ds``; a JSON line after every chunk."""
+    success = arrived(ds, radius)
+    _, lengths = odata.episode_bounds(np.asarray(ds.episode_ids))
+    first = np.concatenate([[0], np.cumsum(lengths)[:-1]])
     position = np.concatenate([np.arange(n) for n in lengths])
     from_end = np.concatenate([np.arange(n)[::-1] for n in lengths])
     groups = {"all": np.ones_like(success), "first50": position < 50, "last10": from_end < 10}
-    budget = experiment.Budget(steps=steps, hidden=HIDDEN, batch=256, actor="nn_residual",
-                               warmstart=0.5, actor_rate="scaled")
-    for name, ds in versions.items():
-        zero = survival.variant(ds, "zero", "keep")
-        plain = zero.replace(metadata=zero.metadata.updated(rewards_visible=True))
-        for pessimism in ("absolute", "relative"):
-            trainer = atac.make_train(plain, experiment.atac_config(budget, pessimism=pessimism))
-            state, _ = experiment.train_chunked(trainer, experiment.seed_keys([0]), 5000)
-            critic = jax.tree.map(lambda x: x[0], state.params["critic"])
-            q = QEnsemble(2, hidden_sizes=HIDDEN).apply(
-                critic, jnp.asarray(ds.observations, jnp.float32),
-                jnp.asarray(ds.actions, jnp.float32))
-            q = np.asarray(q).min(-1)
-            row = {"data": name, "pessimism": pessimism, "steps": steps,
-                   "success_episodes": int(whole.sum()), "episodes": int(whole.size)}
-            for g, mask in groups.items():
-                row[f"q_success_{g}"] = float(q[success & mask].mean())
-                row[f"q_fail_{g}"] = float(q[~success & mask].mean())
-            print(json.dumps(row), flush=True)
+    zero = survival.variant(ds, "zero", "keep")
+    plain = zero.replace(metadata=zero.metadata.updated(rewards_visible=True))
+    obs = jnp.asarray(ds.observations, jnp.float32)
+    act = jnp.asarray(ds.actions, jnp.float32)
+    critic = QEnsemble(2, hidden_sizes=tuple(args.hidden))
+    q_fn = jax.jit(jax.vmap(lambda c: critic.apply(c, obs, act).min(-1)))
+    trainer = atac.make_train(plain, experiment.atac_config(budget,
+                                                            pessimism=PESSIMISM[learner]))
+    score_fn = None
+    if evaluator is not None:
+        score_fn = jax.jit(jax.vmap(lambda p: evaluator.evaluate(
+            trainer.act, p, jax.random.PRNGKey(10_000))["normalized_score"]))
+    t0 = time.time()
+
+    def report(state, _metrics, done: int) -> None:
+        q = np.asarray(q_fn(state.params["critic"]))  # (seeds, N)
+        row = {"data": name, "learner": learner, "step": done, "steps": args.steps,
+               "seeds": args.seeds, "wall_s": round(time.time() - t0, 1),
+               "success_episodes": int(success[first].sum()), "episodes": int(lengths.size)}
+        for g, mask in groups.items():
+            row[f"q_success_{g}"] = float(q[:, success & mask].mean())
+            row[f"q_fail_{g}"] = float(q[:, ~success & mask].mean())
+        if score_fn is not None:
+            row["score"] = np.asarray(score_fn(run_actor_params(state)), np.float64).tolist()
+        print(json.dumps(row), flush=True)
+
+    experiment.train_chunked(trainer, experiment.seed_keys(range(args.seeds)), args.chunk,
+                             on_chunk=report)
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]), sys.argv[2])
+    main()
