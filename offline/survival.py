@@ -185,6 +185,19 @@ def goal_distances(dataset: odata.Dataset, which: str = "next_observations") -> 
     return np.linalg.norm(block, axis=-1)
 
 
+def arrived_by(dataset: odata.Dataset, deadline: int, radius: float = 0.05) -> np.ndarray:
+    """Per episode (in order): whether the end effector is within ``radius`` of the goal
+    (``next_observations``, :func:`goal_distances`) at any of its first ``deadline``
+    transitions; bool ``(num_episodes,)``. Host-side; the arguments are not checked."""
+    ids = np.asarray(dataset.episode_ids)
+    starts, lengths = odata.episode_bounds(ids)
+    if not starts.size:
+        return np.zeros(0, bool)
+    position = np.arange(ids.size) - np.repeat(starts, lengths)
+    early = (goal_distances(dataset) < radius) & (position < deadline)
+    return np.logical_or.reduceat(early, starts)
+
+
 def cut_before_goal(dataset: odata.Dataset, deadline: int, radius: float = 0.05
                     ) -> odata.Dataset:
     """``dataset`` with a designed length bias (module docstring): an episode whose end
@@ -202,10 +215,7 @@ def cut_before_goal(dataset: odata.Dataset, deadline: int, radius: float = 0.05
     ids = np.asarray(dataset.episode_ids)
     starts, lengths = odata.episode_bounds(ids)
     position = np.arange(ids.size) - np.repeat(starts, lengths)
-    reached = goal_distances(dataset) < radius
-    early = reached & (position < deadline)
-    arrived = np.logical_or.reduceat(early, starts) if starts.size else np.zeros(0, bool)
-    cut = ~arrived & (lengths > deadline)
+    cut = ~arrived_by(dataset, deadline, radius) & (lengths > deadline)
     cut_rows = np.repeat(cut, lengths)
     keep = ~cut_rows | (position < deadline)
     out = odata.take_rows(dataset, keep)
@@ -274,6 +284,7 @@ __all__ = [
     "TERMINAL_MODES",
     "WRONG_REWARDS",
     "absorbing_goal",
+    "arrived_by",
     "cut_before_goal",
     "goal_distances",
     "length_bias_statistics",

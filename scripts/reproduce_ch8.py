@@ -196,18 +196,21 @@ def filtered_name(args) -> str:
     return f"{args.safety_dataset}-filtered"
 
 
+def _mode(name: str) -> str:
+    """The mode of a dataset name: ``cut``, ``full``, ``deadline`` or ``goal``."""
+    return name.removesuffix("-filtered").rsplit("-", 1)[-1]
+
+
 def split_name(name: str) -> tuple[str, bool, bool]:
     """``(recipe, cut_at_collision, filtered)`` of a dataset name (``-deadline`` and ``-goal``
     datasets are derived from the collision-cut one)."""
-    filtered = name.endswith("-filtered")
-    stem = name.removesuffix("-filtered")
-    recipe, mode = stem.rsplit("-", 1)
-    return recipe, mode in ("cut", *DEADLINE_MODES), filtered
+    recipe = name.removesuffix("-filtered").rsplit("-", 1)[0]
+    return recipe, _mode(name) in ("cut", *DEADLINE_MODES), name.endswith("-filtered")
 
 
 def is_deadline(name: str) -> bool:
     """Whether ``name`` is cut at a goal deadline (``<recipe>-deadline`` or ``<recipe>-goal``)."""
-    return name.removesuffix("-filtered").rsplit("-", 1)[-1] in DEADLINE_MODES
+    return _mode(name) in DEADLINE_MODES
 
 
 def data_path(args, recipe: str, cut: bool) -> Path:
@@ -241,7 +244,7 @@ def load_dataset(args, name: str):
     ds = odata.check_environment(odata.load(path), env, name=name)
     if is_deadline(name):
         ds = cut_before_goal(ds, args.goal_deadline, radius=float(env.success_radius))
-    if name.removesuffix("-filtered").endswith("-goal"):
+    if _mode(name) == "goal":
         ds = absorbing_goal(ds, radius=float(env.success_radius))
     return filter_collision_margin(ds, ENV, args.margin) if filtered else ds
 

@@ -65,15 +65,6 @@ def parse_args() -> argparse.Namespace:
     return args
 
 
-def arrived(ds: odata.Dataset, radius: float) -> np.ndarray:
-    """Per transition: whether its episode reaches the goal within its first DEADLINE steps."""
-    _, lengths = odata.episode_bounds(np.asarray(ds.episode_ids))
-    position = np.concatenate([np.arange(n) for n in lengths])
-    early = (survival.goal_distances(ds) < radius) & (position < DEADLINE)
-    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-    return np.repeat(np.logical_or.reduceat(early, starts), lengths)
-
-
 def main() -> None:
     args = parse_args()
     env = collect.make_env(ENV)
@@ -100,9 +91,9 @@ def main() -> None:
 def train(args: argparse.Namespace, name: str, ds: odata.Dataset, learner: str,
           budget: experiment.Budget, evaluator, radius: float) -> None:
     """One zero-reward program of ``learner`` on ``ds``; a JSON line after every chunk."""
-    success = arrived(ds, radius)
+    episodes_arrived = survival.arrived_by(ds, DEADLINE, radius)
     _, lengths = odata.episode_bounds(np.asarray(ds.episode_ids))
-    first = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    success = np.repeat(episodes_arrived, lengths)
     position = np.concatenate([np.arange(n) for n in lengths])
     from_end = np.concatenate([np.arange(n)[::-1] for n in lengths])
     groups = {"all": np.ones_like(success), "first50": position < 50, "last10": from_end < 10}
@@ -124,7 +115,7 @@ def train(args: argparse.Namespace, name: str, ds: odata.Dataset, learner: str,
         q = np.asarray(q_fn(state.params["critic"]))  # (seeds, N)
         row = {"data": name, "learner": learner, "step": done, "steps": args.steps,
                "seeds": args.seeds, "wall_s": round(time.time() - t0, 1),
-               "success_episodes": int(success[first].sum()), "episodes": int(lengths.size)}
+               "success_episodes": int(episodes_arrived.sum()), "episodes": int(lengths.size)}
         for g, mask in groups.items():
             row[f"q_success_{g}"] = float(q[:, success & mask].mean())
             row[f"q_fail_{g}"] = float(q[:, ~success & mask].mean())
