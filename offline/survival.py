@@ -227,16 +227,29 @@ def cut_before_goal(dataset: odata.Dataset, deadline: int, radius: float = 0.05
     return odata.validate(out.replace(terminals=terminals, timeouts=timeouts, metadata=meta))
 
 
-def absorbing_goal(dataset: odata.Dataset, radius: float = 0.05) -> odata.Dataset:
+def absorbing_goal(dataset: odata.Dataset, radius: float = 0.05, *,
+                   at_arrival: bool = False) -> odata.Dataset:
     """``dataset`` with the goal as its only absorbing state (module docstring; thesis §8.3.1,
     §8.4.1): the last transition of an episode whose last next observation is within ``radius``
     of the goal (:func:`goal_distances`) becomes a terminal, the last transition of every other
     episode a timeout, and no other transition ends an episode (collision terminals become
-    timeouts). Transitions are unchanged; host-side. Records ``metadata["absorbing_goal"] =
-    {"radius", "episodes_at_goal"}``."""
+    timeouts). Host-side.
+
+    With ``at_arrival`` an episode ends at its **first** transition into the goal region (the
+    rest of it is dropped), as in the thesis's Meta-World data (§8.4.1: a successful trajectory
+    ends with the termination signal when it reaches the goal), so the terminal sits where the
+    agent arrives rather than after it has lingered there; otherwise transitions are unchanged.
+    Records ``metadata["absorbing_goal"] = {"radius", "episodes_at_goal", "at_arrival"}``."""
     odata.validate(dataset)
     if not (isinstance(radius, int | float) and not isinstance(radius, bool) and radius > 0):
         raise ValueError(f"radius must be a positive number, got {radius!r}")
+    if at_arrival:
+        ids = np.asarray(dataset.episode_ids)
+        starts, lengths = odata.episode_bounds(ids)
+        inside = goal_distances(dataset) < radius
+        before = np.cumsum(inside) - np.repeat(np.cumsum(inside)[starts] - inside[starts],
+                                                lengths)  # arrivals so far, this one included
+        dataset = odata.take_rows(dataset, (before == 0) | (inside & (before == 1)))
     ids = np.asarray(dataset.episode_ids)
     starts, lengths = odata.episode_bounds(ids)
     last = np.zeros(ids.size, bool)
@@ -244,7 +257,8 @@ def absorbing_goal(dataset: odata.Dataset, radius: float = 0.05) -> odata.Datase
     at_goal = last & (goal_distances(dataset) < radius)
     dtype = np.asarray(dataset.terminals).dtype
     meta = dataset.metadata.updated(absorbing_goal={"radius": float(radius),
-                                                    "episodes_at_goal": int(at_goal.sum())})
+                                                    "episodes_at_goal": int(at_goal.sum()),
+                                                    "at_arrival": bool(at_arrival)})
     return odata.validate(dataset.replace(terminals=at_goal.astype(dtype),
                                           timeouts=(last & ~at_goal).astype(dtype),
                                           metadata=meta))

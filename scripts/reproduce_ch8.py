@@ -33,11 +33,14 @@ within the success radius ends in a terminal, every other one (deadline cut, col
 horizon) in a timeout — §8.4.1's goal-oriented length bias (successes unbounded, failures
 bounded), with the failures' terminals removed as in the thesis's footnote 4 on hopper and
 walker2d; the ``-deadline`` data instead makes the *failures* absorbing. Length-biased in (a)
-and (b) as well. With ``--safety`` (on by
-default) also ``<safety-dataset>-filtered``: :func:`offline.filtering.filter_collision_margin`
-of ``--safety-dataset`` (default ``mixed-full``, whose colliding episodes run on through the
-obstacles) with ``--margin`` (default the reward's δ = 0.05 m: exactly the transitions with a
-non-zero obstacle cost are removed, §8.4.2's "remove all transitions with non-zero cost").
+and (b) as well. And ``<recipe>-arrive``: as ``-goal``, but a successful episode ends with its
+terminal at its first transition into the goal region (``absorbing_goal(..., at_arrival=True)``),
+as the thesis's Meta-World data do, rather than after lingering there; also length-biased.
+With ``--safety`` (on by default) also ``<safety-dataset>-filtered``:
+:func:`offline.filtering.filter_collision_margin` of ``--safety-dataset`` (default ``mixed-full``,
+whose colliding episodes run on through the obstacles) with ``--margin`` (default the reward's δ =
+0.05 m: exactly the transitions with a non-zero obstacle cost are removed, §8.4.2's "remove all
+transitions with non-zero cost").
 
 Stages (``--stage all`` runs them in order; each is resumable):
 
@@ -69,7 +72,7 @@ Stages (``--stage all`` runs them in order; each is resumable):
        least BC's mean score + :data:`WELL_ABOVE` (10) points. Checked for ATAC and PSPI: it
        should hold on every ``-cut`` dataset and on no ``-full`` dataset;
    (b) the eq 8.3 estimate (from mean normalised scores, ``Ĵ* = 100``) of ATAC and PSPI is
-       larger on ``<recipe>-cut`` (and ``-deadline``, ``-goal``) than on ``<recipe>-full`` (∞ >
+       larger on ``<recipe>-cut`` (and the deadline modes) than on ``<recipe>-full`` (∞ >
        any finite value);
    (safety) on the filtered dataset, the collision rate (100 − safe %) of ATAC and PSPI is
        below that of BC on ``--safety-dataset`` and below their own on the unfiltered data.
@@ -182,12 +185,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 
 
 #: Dataset modes derived from the collision-cut data with a goal deadline (``--goal-deadline``).
-DEADLINE_MODES = ("deadline", "goal")
+DEADLINE_MODES = ("deadline", "goal", "arrive")
 
 
 def base_datasets(recipes: Sequence[str], goal_deadline: int | None = None) -> list[str]:
-    """``<recipe>-cut`` and ``<recipe>-full`` for every recipe, and ``<recipe>-deadline`` and
-    ``<recipe>-goal`` when ``goal_deadline`` is given."""
+    """``<recipe>-cut`` and ``<recipe>-full`` for every recipe, and ``<recipe>-deadline``,
+    ``<recipe>-goal`` and ``<recipe>-arrive`` when ``goal_deadline`` is given."""
     modes = ("cut", "full") + (DEADLINE_MODES if goal_deadline else ())
     return [f"{r}-{mode}" for r in recipes for mode in modes]
 
@@ -197,19 +200,19 @@ def filtered_name(args) -> str:
 
 
 def _mode(name: str) -> str:
-    """The mode of a dataset name: ``cut``, ``full``, ``deadline`` or ``goal``."""
+    """The mode of a dataset name: ``cut``, ``full`` or one of :data:`DEADLINE_MODES`."""
     return name.removesuffix("-filtered").rsplit("-", 1)[-1]
 
 
 def split_name(name: str) -> tuple[str, bool, bool]:
-    """``(recipe, cut_at_collision, filtered)`` of a dataset name (``-deadline`` and ``-goal``
+    """``(recipe, cut_at_collision, filtered)`` of a dataset name (the :data:`DEADLINE_MODES`
     datasets are derived from the collision-cut one)."""
     recipe = name.removesuffix("-filtered").rsplit("-", 1)[0]
     return recipe, _mode(name) in ("cut", *DEADLINE_MODES), name.endswith("-filtered")
 
 
 def is_deadline(name: str) -> bool:
-    """Whether ``name`` is cut at a goal deadline (``<recipe>-deadline`` or ``<recipe>-goal``)."""
+    """Whether ``name`` is cut at a goal deadline (one of :data:`DEADLINE_MODES`)."""
     return _mode(name) in DEADLINE_MODES
 
 
@@ -244,8 +247,9 @@ def load_dataset(args, name: str):
     ds = odata.check_environment(odata.load(path), env, name=name)
     if is_deadline(name):
         ds = cut_before_goal(ds, args.goal_deadline, radius=float(env.success_radius))
-    if _mode(name) == "goal":
-        ds = absorbing_goal(ds, radius=float(env.success_radius))
+    if _mode(name) in ("goal", "arrive"):
+        ds = absorbing_goal(ds, radius=float(env.success_radius),
+                            at_arrival=_mode(name) == "arrive")
     return filter_collision_margin(ds, ENV, args.margin) if filtered else ds
 
 
@@ -466,7 +470,7 @@ def acceptance(args, cells: dict, bias: dict, lengths: dict) -> dict:
         "a_length_biased_well_above_bc": bool(all(biased)) if biased else None,
         "a_unbiased_not_well_above_bc": (not any(unbiased)) if unbiased else None,
         "rule_b": "eq 8.3 estimate (mean normalised scores, J* = 100) on <recipe>-cut (and "
-                  "<recipe>-deadline, <recipe>-goal) > on <recipe>-full (inf > any finite value)",
+                  "<recipe>-deadline, -goal, -arrive) > on <recipe>-full (inf > any finite value)",
         "bias_estimate": {f"{d}/{lrn}": _json_float(v) for (d, lrn), v in sorted(bias.items())},
         "bias_larger_on_length_biased": larger,
         "b_bias_larger_on_length_biased": bool(all(larger.values())) if larger else None,

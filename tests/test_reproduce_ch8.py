@@ -270,14 +270,14 @@ def test_cpu_smoke_end_to_end(tmp_path):
 
 
 def test_goal_deadline_datasets_are_named_and_keyed(tmp_path):
-    """``--goal-deadline N`` adds ``<recipe>-deadline`` and ``<recipe>-goal`` (derived from the
-    cut data, counted as length-biased), whose cells carry N in their key; other cells keep
-    their keys."""
+    """``--goal-deadline N`` adds ``<recipe>-deadline``, ``-goal`` and ``-arrive`` (derived
+    from the cut data, counted as length-biased), whose cells carry N in their key; other cells
+    keep their keys."""
     base = ["--out", str(tmp_path), "--recipes", "mixed", "--scale", "1"]
     args = ch8.parse_args([*base, "--goal-deadline", "200"])
     assert args.datasets == ["mixed-cut", "mixed-full", "mixed-deadline", "mixed-goal",
-                             "mixed-full-filtered"]
-    for name in ("mixed-deadline", "mixed-goal"):
+                             "mixed-arrive", "mixed-full-filtered"]
+    for name in ("mixed-deadline", "mixed-goal", "mixed-arrive"):
         assert ch8.split_name(name) == ("mixed", True, False)
         assert ch8.is_deadline(name)
         key = json.loads(ch8._cell_key(name, "ATAC", "zero", args))

@@ -263,7 +263,8 @@ def test_absorbing_goal_hand_computed():
     assert per.terminated.tolist() == [True, False, False, False]
     assert per.timed_out.tolist() == [False, True, True, True]
     assert np.asarray(out.terminals).tolist() == [False, False, True] + [False] * 7
-    assert out.metadata["absorbing_goal"] == {"radius": 0.05, "episodes_at_goal": 1}
+    assert out.metadata["absorbing_goal"] == {"radius": 0.05, "episodes_at_goal": 1,
+                                              "at_arrival": False}
     for field in ("observations", "actions", "rewards", "next_observations", "episode_ids"):
         np.testing.assert_array_equal(np.asarray(getattr(out, field)),
                                       np.asarray(getattr(ds, field)))
@@ -280,6 +281,31 @@ def test_absorbing_goal_hand_computed():
     for bad in (0.0, -1.0, True):
         with pytest.raises(ValueError, match="radius must be a positive"):
             sv.absorbing_goal(ds, radius=bad)
+
+
+def test_absorbing_goal_at_arrival_hand_computed():
+    # at_arrival: an episode ends at its first transition into the goal region. Episode 10
+    # arrives at its last transition (unchanged, terminal); 12 arrives at its 2nd (0.01) and
+    # loses its 3rd (0.2), which left the goal; 11 and 13 never arrive and end in timeouts.
+    ds = _goal_dataset([[0.5, 0.2, 0.04], [0.5, 0.4], [0.3, 0.01, 0.2], [0.5, 0.4]],
+                       ["timeout", "timeout", "timeout", "terminal"])
+    out = sv.absorbing_goal(ds, at_arrival=True)
+    per, _ = odata.episode_statistics(out)
+    assert per.lengths.tolist() == [3, 2, 2, 2]
+    assert per.terminated.tolist() == [True, False, True, False]
+    assert per.timed_out.tolist() == [False, True, False, True]
+    np.testing.assert_allclose(sv.goal_distances(out), [0.5, 0.2, 0.04, 0.5, 0.4, 0.3, 0.01,
+                                                        0.5, 0.4], atol=1e-6)
+    assert out.metadata["absorbing_goal"] == {"radius": 0.05, "episodes_at_goal": 2,
+                                              "at_arrival": True}
+    keep = np.array([True] * 7 + [False] + [True] * 2)
+    for field in ("observations", "actions", "rewards", "next_observations", "episode_ids"):
+        np.testing.assert_array_equal(np.asarray(getattr(out, field)),
+                                      np.asarray(getattr(ds, field))[keep])
+    # An episode inside the goal region from its first transition ends right there.
+    first = _goal_dataset([[0.01, 0.02, 0.3]], ["timeout"])
+    arrived = sv.absorbing_goal(first, at_arrival=True)
+    assert odata.episode_statistics(arrived)[0].lengths.tolist() == [1]
 
 
 def test_goal_deadline_gives_collected_data_a_length_bias(collected):
