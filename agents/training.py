@@ -79,6 +79,9 @@ class RunSpec:
     ppo: PPOConfig = dataclasses.field(default_factory=cpu_preset)
     log_every: int = 5
     checkpoint_every: int = 25
+    #: How many of the newest checkpoints to keep; ``None`` keeps every one (what an offline
+    #: ``medium-replay`` dataset of the run's snapshots needs, :mod:`offline.collect`).
+    keep_checkpoints: int | None = 3
 
     def __post_init__(self):
         if self.policy not in KINDS:
@@ -93,6 +96,10 @@ class RunSpec:
             v = getattr(self, name)
             if not isinstance(v, int) or v < 1:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
+        if self.keep_checkpoints is not None and not (
+                isinstance(self.keep_checkpoints, int) and self.keep_checkpoints >= 1):
+            raise ValueError(f"keep_checkpoints must be a positive integer or None (keep all), "
+                             f"got {self.keep_checkpoints!r}")
         if self.checkpoint_every % self.log_every:
             raise ValueError(f"checkpoint_every={self.checkpoint_every} must be a multiple of "
                              f"log_every={self.log_every}")
@@ -491,7 +498,7 @@ def run_training(spec: RunSpec, out_dir: str, resume: bool = False, progress: bo
             return
         meta = dict(spec.identity(), iteration=at, history=_history_to_json(history),
                     run=spec.to_json())
-        checkpoint.save(ckpt_dir, at, state, meta)
+        checkpoint.save(ckpt_dir, at, state, meta, max_to_keep=spec.keep_checkpoints)
         saved[0] = at
 
     try:

@@ -19,11 +19,12 @@ seed-steps. Each training process prints ``[time]`` lines (train and evaluation 
 program) to tune ``--steps``; a process cut off by a time limit loses only the program in
 flight (finished cells are in ``results.jsonl``; rerun the same command to continue).
 
-Datasets (3-link ``three_link/env3``, :func:`offline.collect.collect_recipe` without a PPO run,
-i.e. its documented fallback sources): for every recipe of ``--recipes`` (default ``mixed`` and
-``medium-replay``) ``<recipe>-cut`` — episodes cut at the first collision (a terminal): the
-length bias of §8.3.3 — and ``<recipe>-full`` — ``cut_at_collision=False``, every episode runs
-the full horizon (no length bias, like D4RL's halfcheetah in §8.4.1). With ``--goal-deadline N``
+Datasets (3-link ``three_link/env3``, :func:`offline.collect.collect_recipe` without a PPO run, i.e.
+its documented fallback sources, or with ``--ppo-run RUN_DIR`` that run's snapshots): for every
+recipe of ``--recipes`` (default ``mixed`` and ``medium-replay``) ``<recipe>-cut`` — episodes cut at
+the first collision (a terminal): the length bias of §8.3.3 — and ``<recipe>-full`` —
+``cut_at_collision=False``, every episode runs the full horizon (no length bias, like D4RL's
+halfcheetah in §8.4.1). With ``--goal-deadline N``
 also ``<recipe>-deadline``: the ``-cut`` data with every episode that has not reached the goal
 by its ``N``-th step cut there as a terminal (:func:`offline.survival.cut_before_goal`, the
 "timeout-before-goal" cut: a designed, strong length bias); it counts as length-biased in (a)
@@ -157,6 +158,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--margin", type=float, default=None,
                    help="filter clearance in metres (default: the reward's obstacle delta)")
     p.add_argument("--data-seed", type=int, default=0)
+    p.add_argument("--ppo-run", type=Path, default=None, metavar="RUN_DIR",
+                   help="collect the recipes' PPO sources from this training run (scripts/"
+                        "train.py; medium-replay is its checkpoints up to --ppo-step, so "
+                        "train it with --keep-checkpoints 0); default: the scripted fallback "
+                        "sources of offline.collect")
+    p.add_argument("--ppo-step", type=int, default=None,
+                   help="the run's checkpoint that counts as 'medium' (default: its newest)")
     p.add_argument("--out", type=Path, default=ROOT / "results" / "ch8")
     args = p.parse_args(argv)
     args = apply_preset(p, args, PRESETS[args.preset],
@@ -164,6 +172,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                          "reference_episodes"))
     if args.goal_deadline is not None and args.goal_deadline < 1:
         p.error("--goal-deadline must be a positive number of steps")
+    if args.ppo_step is not None and args.ppo_run is None:
+        p.error("--ppo-step needs --ppo-run")
     if args.margin is None:
         from offline.collect import make_env
 
@@ -216,10 +226,18 @@ def is_deadline(name: str) -> bool:
     return _mode(name) in DEADLINE_MODES
 
 
+def _ppo_tag(args) -> list:
+    """What identifies the PPO sources of the data (``[]`` for the scripted fallback)."""
+    if args.ppo_run is None:
+        return []
+    return ["ppo", args.ppo_run.name, "latest" if args.ppo_step is None else args.ppo_step]
+
+
 def data_path(args, recipe: str, cut: bool) -> Path:
     mode = "cut" if cut else "full"
-    return (args.out / "data" /
-            f"{ENV.replace('/', '-')}_{recipe}_{mode}_x{args.scale}_s{args.data_seed}.npz")
+    ppo = "_".join(map(str, _ppo_tag(args)))
+    return (args.out / "data" / f"{ENV.replace('/', '-')}_{recipe}_{mode}_x{args.scale}_"
+                                f"s{args.data_seed}{'_' + ppo if ppo else ''}.npz")
 
 
 def collect_stage(args) -> None:
@@ -229,7 +247,7 @@ def collect_stage(args) -> None:
     for name in base_datasets(args.recipes):
         recipe, cut, _ = split_name(name)
         collect_cached(data_path(args, recipe, cut), ENV, recipe, args.scale, args.data_seed,
-                       name, cut_at_collision=cut)
+                       name, cut_at_collision=cut, ppo_run=args.ppo_run, ppo_step=args.ppo_step)
 
 
 def load_dataset(args, name: str):
@@ -264,7 +282,7 @@ def _cell_key(dataset: str, learner: str, reward: str, args) -> str:
     from offline.sweep import setting_key
 
     deadline = ["goal_deadline", args.goal_deadline] if is_deadline(dataset) else []
-    return json.dumps(key + deadline + setting_key(args))
+    return json.dumps(key + deadline + _ppo_tag(args) + setting_key(args))
 
 
 class _Evaluation:

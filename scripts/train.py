@@ -82,6 +82,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--log-every", type=int, default=5,
                    help="iterations per compiled chunk / log line")
     p.add_argument("--checkpoint-every", type=int, default=25, help="iterations per checkpoint")
+    p.add_argument("--keep-checkpoints", type=int, default=3, metavar="N",
+                   help="keep the N newest checkpoints; 0 keeps every one (the snapshots an "
+                        "offline medium-replay dataset is collected from)")
     p.add_argument("--devices", type=int, default=None,
                    help="shard the environment batch over this many devices")
     p.add_argument("--distributed", action="store_true",
@@ -105,7 +108,8 @@ def main(argv: list[str] | None = None) -> int:
             overrides["total_iterations"] = args.iterations
         spec = RunSpec(env=args.env, policy=args.policy, seeds=tuple(args.seeds),
                        ppo=preset(args.preset, **overrides), log_every=args.log_every,
-                       checkpoint_every=args.checkpoint_every)
+                       checkpoint_every=args.checkpoint_every,
+                       keep_checkpoints=args.keep_checkpoints or None)
     except (TypeError, ValueError) as e:
         p.error(str(e))
     out = args.out or os.path.join("runs", f"{args.env.replace('/', '-')}_{args.policy}")

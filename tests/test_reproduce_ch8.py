@@ -289,6 +289,14 @@ def test_goal_deadline_datasets_are_named_and_keyed(tmp_path):
     assert "mixed-deadline" not in plain.datasets and "mixed-goal" not in plain.datasets
     with pytest.raises(SystemExit):
         ch8.parse_args([*base, "--goal-deadline", "0"])
+    # --ppo-run: the data of that run's snapshots get their own files and cell keys.
+    ppo = ch8.parse_args([*base, "--ppo-run", str(tmp_path / "nn_run"), "--ppo-step", "40"])
+    assert ch8.data_path(ppo, "mixed", True).name.endswith("_s0_ppo_nn_run_40.npz")
+    assert ch8.data_path(plain, "mixed", True).name.endswith("_s0.npz")
+    assert ch8._cell_key("mixed-cut", "ATAC", "zero", ppo) != ch8._cell_key(
+        "mixed-cut", "ATAC", "zero", plain)
+    with pytest.raises(SystemExit):
+        ch8.parse_args([*base, "--ppo-step", "40"])
 
 
 def test_learning_curves_end_at_the_final_scores(tmp_path):

@@ -140,6 +140,22 @@ def test_interrupted_run_keeps_completed_iterations(uninterrupted, tmp_path):
     assert resumed.history["mean_reward"].shape == (2, 6)
 
 
+def test_keep_checkpoints_none_keeps_every_snapshot(tmp_path):
+    """``keep_checkpoints=None`` keeps every checkpoint (the snapshots a medium-replay dataset
+    is collected from); the default keeps the 3 newest; bad values are refused."""
+    from agents.runs import checkpoint_steps
+
+    long = dataclasses.replace(SPEC.ppo, total_iterations=8)
+    run_training(dataclasses.replace(SPEC, ppo=long, keep_checkpoints=None),
+                 str(tmp_path / "all"), progress=False)
+    assert checkpoint_steps(tmp_path / "all") == [2, 4, 6, 8]
+    run_training(dataclasses.replace(SPEC, ppo=long), str(tmp_path / "newest"), progress=False)
+    assert checkpoint_steps(tmp_path / "newest") == [4, 6, 8]
+    for bad in (0, -1, 2.5):
+        with pytest.raises(ValueError, match="keep_checkpoints"):
+            dataclasses.replace(SPEC, keep_checkpoints=bad)
+
+
 def test_incompatible_checkpoint_is_refused(uninterrupted, tmp_path):
     _, out = uninterrupted
     other = dataclasses.replace(SPEC, policy="nn_residual")
