@@ -10,7 +10,8 @@ progress, CSV/TensorBoard logs, learning-curve PNGs and resumable orbax checkpoi
 * ``learning_curves.png`` — mean episode return, safe % and success % over iterations
   (mean ± 1 std over seeds);
 * ``checkpoints/<iteration>/`` — orbax checkpoints (:mod:`agents.checkpoint`) every
-  ``checkpoint_every`` iterations and at the end (and on Ctrl-C).
+  ``checkpoint_every`` iterations and at the end (and on Ctrl-C); the ``keep_checkpoints``
+  newest are kept (all with ``None``).
 
 Iterations run in compiled chunks of ``log_every`` (one ``lax.scan`` each, all seeds in one
 ``vmap``); a checkpoint holds the complete state, and iteration ``i`` draws its random numbers

@@ -30,6 +30,8 @@ ANCHOR_FACTS §5).
   radius with a **terminal** and every other episode with a **timeout**. Under pessimism a
   successful episode's value chain is then anchored by its terminal, while a failed one runs
   into a state with no data after it, which a pessimistic critic may value as low as it likes.
+  With ``at_arrival=True`` a successful episode ends at its first step into the goal region,
+  as the thesis's Meta-World data do, rather than at the horizon.
 * **Positive data bias** (eq 8.3): :func:`positive_data_bias`.
 """
 
