@@ -92,7 +92,10 @@ the dataset in the order listed; a source's episodes are identical in every reci
 * ``ppo-medium`` is the run's checkpoint ``ppo_step`` (default: its newest), ``ppo-low`` its
   earliest checkpoint; both act stochastically unless ``ppo_stochastic=False``; medium-replay
   always samples (it stands for the data PPO collected while training). "Medium" quality is
-  whatever checkpoint is passed: choose one whose return is well below the expert's.
+  whatever checkpoint is passed: choose one whose return is well below the expert's. A run keeps
+  only its 3 newest checkpoints unless it was trained with ``scripts/train.py
+  --keep-checkpoints 0`` (``RunSpec.keep_checkpoints=None``), so train it that way for a
+  medium-replay dataset that covers the whole run.
 * ``mixed`` is the union of every non-expert source: random, the noisy experts (the thesis'
   Meta-World mixed data, §7.4.2) and the PPO snapshots (the D4RL mixed data, §7.4.1).
 * **Fallback — read this.** Without a PPO run, ``medium`` / ``medium-expert`` /
