@@ -235,9 +235,9 @@ def _ppo_tag(args) -> list:
 
 def data_path(args, recipe: str, cut: bool) -> Path:
     mode = "cut" if cut else "full"
-    ppo = "_".join(map(str, _ppo_tag(args)))
-    return (args.out / "data" / f"{ENV.replace('/', '-')}_{recipe}_{mode}_x{args.scale}_"
-                                f"s{args.data_seed}{'_' + ppo if ppo else ''}.npz")
+    ppo = "".join(f"_{part}" for part in _ppo_tag(args))
+    return (args.out / "data" /
+            f"{ENV.replace('/', '-')}_{recipe}_{mode}_x{args.scale}_s{args.data_seed}{ppo}.npz")
 
 
 def collect_stage(args) -> None:
@@ -263,11 +263,11 @@ def load_dataset(args, name: str):
         raise SystemExit(f"no dataset at {path}: run --stage collect first")
     env = collect.make_env(ENV)
     ds = odata.check_environment(odata.load(path), env, name=name)
-    if is_deadline(name):
-        ds = cut_before_goal(ds, args.goal_deadline, radius=float(env.success_radius))
-    if _mode(name) in ("goal", "arrive"):
-        ds = absorbing_goal(ds, radius=float(env.success_radius),
-                            at_arrival=_mode(name) == "arrive")
+    mode, radius = _mode(name), float(env.success_radius)
+    if mode in DEADLINE_MODES:
+        ds = cut_before_goal(ds, args.goal_deadline, radius=radius)
+    if mode in ("goal", "arrive"):
+        ds = absorbing_goal(ds, radius=radius, at_arrival=mode == "arrive")
     return filter_collision_margin(ds, ENV, args.margin) if filtered else ds
 
 
