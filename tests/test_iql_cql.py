@@ -9,29 +9,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
+from offline_bandit import LIMIT, make_bandit, mean_reward
 
 from offline import cql, iql
-from offline import data as odata
 from offline.learner import actor_params
 from offline.networks import QEnsemble
 from offline.tanh_gaussian import TanhGaussianPolicy
 
-LIMIT = 2.0
-A_STAR = 0.5  # best normalised action of the bandit
-N = 512
 TINY = dict(hidden_sizes=(32, 32), batch_size=64, actor_lr=3e-3, critic_lr=3e-3)
 
 
 @pytest.fixture(scope="module")
 def bandit():
     """One-step episodes (all terminal): r = 1 − 4(a/limit − a*)², actions uniform."""
-    rng = np.random.default_rng(0)
-    obs = rng.uniform(-1, 1, (N, 2)).astype(np.float32)
-    act = rng.uniform(-LIMIT, LIMIT, (N, 1)).astype(np.float32)
-    rew = (1.0 - 4.0 * (act[:, 0] / LIMIT - A_STAR) ** 2).astype(np.float32)
-    nxt = rng.uniform(-1, 1, (N, 2)).astype(np.float32)
-    return odata.create(obs, act, rew, nxt, np.ones(N, bool), np.zeros(N, bool), np.arange(N),
-                        {"action_limit": LIMIT})
+    return make_bandit()
 
 
 # ------------------------------------------------------------------ IQL loss pieces
@@ -163,9 +154,7 @@ def test_vmap_over_seeds_and_beta_and_the_bandit_optimum(programs, bandit, name)
             np.testing.assert_allclose(m[k][i, :10], m_single[k][:10], rtol=1e-4, atol=1e-5)
         for state in (single, jax.tree.map(lambda x, i=i: x[i], both)):
             a = np.asarray(trainer.act(actor_params(state), obs))[:, 0] / LIMIT
-            # the behaviour's mean reward is 1 − 4·E(u − a*)² = −4/3; the best is 1
-            reward = 1.0 - 4.0 * (a - A_STAR) ** 2
-            assert reward.mean() > 0.75, (name, i, a.mean(), reward.mean())
+            assert mean_reward(a) > 0.75, (name, i, a.mean(), mean_reward(a))
 
 
 def test_configs_and_reward_data_are_refused(bandit):
