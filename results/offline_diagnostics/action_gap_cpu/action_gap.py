@@ -1,21 +1,58 @@
-import numpy as np, jax, jax.numpy as jnp
-from offline import collect
+"""One-step action gap of the expert's Q on 3-link env3 (session 12).
+
+From 64 scenes: the expert for T0 steps, then one control step of the expert's action, its
+negation, zero, +1 or -1 on every joint, then the expert for 400 steps; discounted returns
+(gamma 0.99) of the five branches. Usage: python action_gap.py T0
+"""
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
 from envs.evaluate import hand_designed_policy
-env=collect.make_env("three_link/env3"); ex=hand_designed_policy(env); g=0.99
-T0=int(__import__("sys").argv[1]); H=400
-def branch(key):
-    s=env.reset(key)
-    s=jax.lax.fori_loop(0,T0,lambda i,s: env.step(s,jnp.clip(ex(s),-1,1)),s)
-    a_ex=jnp.clip(ex(s),-1,1)
-    def ret(a0):
-        s1=env.step(s,a0)
-        def body(c,t):
-            st,acc=c
-            n=env.step(st,jnp.clip(ex(st),-1,1))
-            n=jax.tree.map(lambda x,y: jnp.where(st.done>0,y,x),n,st)
-            return (n, acc + jnp.where(st.done>0,0.0,n.reward)*g**(t+1)),None
-        (_,acc),_=jax.lax.scan(body,(s1,s1.reward),jnp.arange(H))
+from offline import collect
+
+ENV = collect.make_env("three_link/env3")
+EXPERT = hand_designed_policy(ENV)
+GAMMA, HORIZON = 0.99, 400
+
+
+def expert_action(state):
+    return jnp.clip(EXPERT(state), -1.0, 1.0)
+
+
+def branches(key, t0):
+    state = ENV.reset(key)
+    state = jax.lax.fori_loop(0, t0, lambda i, s: ENV.step(s, expert_action(s)), state)
+    a_ex = expert_action(state)
+
+    def discounted_return(a0):
+        s1 = ENV.step(state, a0)
+
+        def body(carry, t):
+            st, acc = carry
+            nxt = ENV.step(st, expert_action(st))
+            nxt = jax.tree.map(lambda x, y: jnp.where(st.done > 0, y, x), nxt, st)
+            return (nxt, acc + jnp.where(st.done > 0, 0.0, nxt.reward) * GAMMA ** (t + 1)), None
+
+        (_, acc), _ = jax.lax.scan(body, (s1, s1.reward), jnp.arange(HORIZON))
         return acc
-    return jnp.stack([ret(a_ex), ret(-a_ex), ret(jnp.zeros_like(a_ex)), ret(jnp.ones_like(a_ex)), ret(-jnp.ones_like(a_ex))])
-q=np.asarray(jax.jit(jax.vmap(branch))(jax.random.split(jax.random.PRNGKey(3),64)))
-print("T0",T0,"Q(expert) mean %.3f"%q[:,0].mean(), "|Q(ex)-Q(-ex)| mean %.4f"%np.abs(q[:,0]-q[:,1]).mean(), "|Q(ex)-Q(0)| %.4f"%np.abs(q[:,0]-q[:,2]).mean(), "|Q(+1)-Q(-1)| %.4f"%np.abs(q[:,3]-q[:,4]).mean(), "max over actions - min: %.4f"%(q.max(1)-q.min(1)).mean())
+
+    ones = jnp.ones_like(a_ex)
+    return jnp.stack([discounted_return(a) for a in (a_ex, -a_ex, 0 * ones, ones, -ones)])
+
+
+def main() -> None:
+    t0 = int(sys.argv[1])
+    keys = jax.random.split(jax.random.PRNGKey(3), 64)
+    q = np.asarray(jax.jit(jax.vmap(lambda k: branches(k, t0)))(keys))
+    print(f"T0 {t0} Q(expert) mean {q[:, 0].mean():.3f} "
+          f"|Q(ex)-Q(-ex)| mean {np.abs(q[:, 0] - q[:, 1]).mean():.4f} "
+          f"|Q(ex)-Q(0)| {np.abs(q[:, 0] - q[:, 2]).mean():.4f} "
+          f"|Q(+1)-Q(-1)| {np.abs(q[:, 3] - q[:, 4]).mean():.4f} "
+          f"max over actions - min: {(q.max(1) - q.min(1)).mean():.4f}")
+
+
+if __name__ == "__main__":
+    main()

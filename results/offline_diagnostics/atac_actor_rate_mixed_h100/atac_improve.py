@@ -21,8 +21,8 @@ import numpy as np
 
 from offline import atac, bc, collect, evaluate
 from offline import data as odata
-from offline.learner import actor_params
 from offline.experiment import init_runs, seed_beta_runs, seed_keys, train_chunked
+from offline.learner import actor_params
 
 ENV = "three_link/env3"
 
