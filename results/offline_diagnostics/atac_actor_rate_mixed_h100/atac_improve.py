@@ -27,11 +27,11 @@ from offline.learner import actor_params
 ENV = "three_link/env3"
 
 
-def dataset(path: Path, scale: int) -> odata.Dataset:
+def dataset(path: Path, scale: int, env_kwargs: dict | None) -> odata.Dataset:
     if not path.exists():
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)
-            ds = collect.collect_recipe(ENV, "mixed", scale, seed=0)
+            ds = collect.collect_recipe(ENV, "mixed", scale, seed=0, env_kwargs=env_kwargs)
         path.parent.mkdir(parents=True, exist_ok=True)
         odata.save(ds, path)
     return odata.load(path)
@@ -53,11 +53,16 @@ def main() -> None:
     p.add_argument("--hidden", type=int, nargs="+", default=[256, 256, 256])
     p.add_argument("--eval-episodes", type=int, default=64)
     p.add_argument("--out", required=True)
+    p.add_argument("--substeps", type=int, default=None,
+                   help="physics substeps per control step (default 3: 80 Hz); the horizon "
+                        "keeps the episode at 7.5 s")
     a = p.parse_args()
 
     t0 = time.perf_counter()
-    ds = dataset(Path(a.data), a.scale)
-    ev = evaluate.make_evaluator(ENV, a.eval_episodes)
+    env_kwargs = (None if a.substeps is None
+                  else {"substeps": a.substeps, "horizon": 1800 // a.substeps})
+    ds = dataset(Path(a.data), a.scale, env_kwargs)
+    ev = evaluate.make_evaluator(ENV, a.eval_episodes, env_kwargs=env_kwargs)
     per, _ = odata.episode_statistics(ds)
     source_scores = {str(s["behaviour"].get("name")): float(ev.normalized_score(
         s["summary"]["return_mean"])) for s in ds.metadata["sources"]}
