@@ -165,6 +165,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         "sources of offline.collect")
     p.add_argument("--ppo-step", type=int, default=None,
                    help="the run's checkpoint that counts as 'medium' (default: its newest)")
+    p.add_argument("--substeps", type=int, default=None, metavar="N",
+                   help="physics substeps per control step (default: the environment's 3, i.e. "
+                        "80 Hz; 24 is 10 Hz). The horizon keeps the episode length in seconds; "
+                        "--goal-deadline counts control steps at this rate. Data files and "
+                        "cell keys get their own names")
     p.add_argument("--out", type=Path, default=ROOT / "results" / "ch8")
     args = p.parse_args(argv)
     args = apply_preset(p, args, PRESETS[args.preset],
@@ -174,6 +179,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         p.error("--goal-deadline must be a positive number of steps")
     if args.ppo_step is not None and args.ppo_run is None:
         p.error("--ppo-step needs --ppo-run")
+    if args.substeps is not None:
+        try:
+            env_kwargs(args)
+        except ValueError as e:
+            p.error(str(e))
     if args.margin is None:
         from offline.collect import make_env
 
@@ -233,11 +243,32 @@ def _ppo_tag(args) -> list:
     return ["ppo", args.ppo_run.name, "latest" if args.ppo_step is None else args.ppo_step]
 
 
+def env_kwargs(args) -> dict[str, int] | None:
+    """The environment's constructor arguments for ``--substeps`` (None: its defaults): that
+    many physics substeps per control step, and the horizon that keeps the episode's length in
+    seconds. Raises ``ValueError`` when the episode is not a whole number of control steps."""
+    if args.substeps is None:
+        return None
+    from offline.collect import make_env
+
+    env = make_env(ENV)
+    total = env.horizon * env.substeps
+    if args.substeps < 1 or total % args.substeps:
+        raise ValueError(f"--substeps must be a positive divisor of the episode's {total} "
+                         f"physics steps, got {args.substeps}")
+    return {"substeps": int(args.substeps), "horizon": total // args.substeps}
+
+
+def _substeps_tag(args) -> list:
+    """What identifies a non-default control rate (``[]`` for the environment's own)."""
+    return [] if args.substeps is None else ["substeps", int(args.substeps)]
+
+
 def data_path(args, recipe: str, cut: bool) -> Path:
     mode = "cut" if cut else "full"
-    ppo = "".join(f"_{part}" for part in _ppo_tag(args))
+    tag = "".join(f"_{part}" for part in _ppo_tag(args) + _substeps_tag(args))
     return (args.out / "data" /
-            f"{ENV.replace('/', '-')}_{recipe}_{mode}_x{args.scale}_s{args.data_seed}{ppo}.npz")
+            f"{ENV.replace('/', '-')}_{recipe}_{mode}_x{args.scale}_s{args.data_seed}{tag}.npz")
 
 
 def collect_stage(args) -> None:
@@ -247,7 +278,8 @@ def collect_stage(args) -> None:
     for name in base_datasets(args.recipes):
         recipe, cut, _ = split_name(name)
         collect_cached(data_path(args, recipe, cut), ENV, recipe, args.scale, args.data_seed,
-                       name, cut_at_collision=cut, ppo_run=args.ppo_run, ppo_step=args.ppo_step)
+                       name, cut_at_collision=cut, ppo_run=args.ppo_run, ppo_step=args.ppo_step,
+                       env_kwargs=env_kwargs(args))
 
 
 def load_dataset(args, name: str):
@@ -261,7 +293,7 @@ def load_dataset(args, name: str):
     path = data_path(args, recipe, cut)
     if not path.exists():
         raise SystemExit(f"no dataset at {path}: run --stage collect first")
-    env = collect.make_env(ENV)
+    env = collect.make_env(ENV, env_kwargs(args))
     ds = odata.check_environment(odata.load(path), env, name=name)
     mode, radius = _mode(name), float(env.success_radius)
     if mode in DEADLINE_MODES:
@@ -282,7 +314,7 @@ def _cell_key(dataset: str, learner: str, reward: str, args) -> str:
     from offline.sweep import setting_key
 
     deadline = ["goal_deadline", args.goal_deadline] if is_deadline(dataset) else []
-    return json.dumps(key + deadline + _ppo_tag(args) + setting_key(args))
+    return json.dumps(key + deadline + _ppo_tag(args) + _substeps_tag(args) + setting_key(args))
 
 
 class _Evaluation:
@@ -294,7 +326,8 @@ class _Evaluation:
         from offline import evaluate
 
         self.evaluator = evaluate.make_evaluator(ENV, args.eval_episodes,
-                                                 reference_episodes=args.reference_episodes)
+                                                 reference_episodes=args.reference_episodes,
+                                                 env_kwargs=env_kwargs(args))
         self.probe = probe
         self.programs: list = []  # (act, jitted program)
 
@@ -384,7 +417,8 @@ def train_stage(args) -> None:
                        "steps": args.steps, "hidden": list(args.hidden), "batch": args.batch,
                        "runs_in_program": runs, "program_train_s": train_s,
                        "program_eval_s": eval_s, "device": jax.devices()[0].device_kind,
-                       "transitions": int(ds.size), **sweep.setting_fields(args),
+                       "transitions": int(ds.size), "substeps": args.substeps,
+                       **sweep.setting_fields(args),
                        "reference": evaluation.evaluator.reference, **ev}
                 with open(results, "a") as f:
                     f.write(json.dumps(row) + "\n")

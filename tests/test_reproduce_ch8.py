@@ -297,6 +297,26 @@ def test_goal_deadline_datasets_are_named_and_keyed(tmp_path):
         "mixed-cut", "ATAC", "zero", plain)
     with pytest.raises(SystemExit):
         ch8.parse_args([*base, "--ppo-step", "40"])
+    # --substeps: another control rate, with its own data files and cell keys.
+    rate = ch8.parse_args([*base, "--substeps", "24"])
+    assert ch8.env_kwargs(rate) == {"substeps": 24, "horizon": 75}
+    assert ch8.env_kwargs(plain) is None
+    assert ch8.data_path(rate, "mixed", True).name.endswith("_s0_substeps_24.npz")
+    assert ch8._cell_key("mixed-cut", "ATAC", "zero", rate) != ch8._cell_key(
+        "mixed-cut", "ATAC", "zero", plain)
+    with pytest.raises(SystemExit):
+        ch8.parse_args([*base, "--substeps", "7"])
+
+
+def test_substeps_collects_and_loads_at_that_control_rate(tmp_path):
+    """``--substeps 24``: the data are collected and checked with 24 physics substeps per
+    control step and a 75-step horizon (10 Hz, the same 7.5 s episodes)."""
+    args = ch8.parse_args(["--out", str(tmp_path), "--recipes", "random", "--scale", "1",
+                           "--substeps", "24", "--no-safety"])
+    ch8.collect_stage(args)
+    ds = ch8.load_dataset(args, "random-full")
+    assert ds.metadata["horizon"] == 75 and ds.size == 75
+    assert ds.metadata["env_kwargs"]["substeps"] == 24
 
 
 def test_learning_curves_end_at_the_final_scores(tmp_path):
