@@ -655,13 +655,17 @@ def _plot_curves(args, cells: dict) -> None:
         return
     fig, axes = plt.subplots(1, len(datasets), figsize=(4.2 * len(datasets), 3.2),
                              squeeze=False, sharey=True)
+    # one colour per (learner, reward) in every panel, in a fixed order
+    lines = sorted({(lrn, r) for (_, lrn, r), c in cells.items() if "curve" in c})
+    colour = {line: f"C{i % 10}" for i, line in enumerate(lines)}
     for ax, d in zip(axes[0], datasets, strict=True):
-        for (dd, lrn, r), c in cells.items():
-            if dd != d or "curve" not in c:
+        for line in lines:
+            c = cells.get((d, *line))
+            if c is None or "curve" not in c:
                 continue
             x, m, e = (np.asarray(c["curve"][k], np.float64) for k in ("steps", "mean", "se"))
-            ax.plot(x, m, marker=".", label=f"{lrn} {r}")
-            ax.fill_between(x, m - e, m + e, alpha=0.2)
+            ax.plot(x, m, marker=".", c=colour[line], label=" ".join(line))
+            ax.fill_between(x, m - e, m + e, color=colour[line], alpha=0.2)
         if (d, "BC", "none") in cells:
             ax.axhline(cells[(d, "BC", "none")]["mean"], ls="--", c="k", lw=1,
                        label="BC (final)")
