@@ -362,8 +362,8 @@ def test_pspi_reward_fn_and_remove_terminals_build():
 @pytest.mark.parametrize("pessimism", atac.PESSIMISM)
 def test_policy_moves_from_its_warm_start_to_the_bandit_optimum(pessimism):
     """Policy improvement where the data covers the best action: on the one-step bandit of
-    ``offline_bandit`` (uniform actions, whose clone has mean action 0 and mean reward ≈ −4/3)
-    the BC warm start ends near the behaviour, and the game phase (ATAC's relative or PSPI's
+    ``offline_bandit`` (uniform actions, mean reward −4/3) the BC warm start ends near the
+    behaviour's mean action 0 (reward 0 there), and the game phase (ATAC's relative or PSPI's
     absolute pessimism at the published β = 16) then moves the actor to the best action."""
     ds = make_bandit()
     cfg = atac.ATACConfig(hidden_sizes=(32, 32), batch_size=64, num_steps=600,
