@@ -152,6 +152,39 @@ def add_learner_options(parser: Any) -> None:
                              "(offline.experiment.atac_config; cells get their own key)")
 
 
+def add_substeps_option(parser: Any) -> None:
+    """``--substeps N`` of the reproduction scripts: the control rate (see
+    :func:`control_rate_kwargs`)."""
+    parser.add_argument("--substeps", type=int, default=None, metavar="N",
+                        help="physics substeps per control step (default: the environment's 3, "
+                             "i.e. 80 Hz; 24 is 10 Hz). The horizon keeps the episode length in "
+                             "seconds; step counts such as --goal-deadline are control steps at "
+                             "this rate. Data files and cell keys get their own names")
+
+
+def control_rate_kwargs(env_name: str, substeps: int | None) -> dict[str, int] | None:
+    """The constructor arguments of environment ``env_name`` for ``substeps`` physics substeps
+    per control step (``None``: its defaults), with the horizon that keeps the episode's length
+    in seconds. Raises ``ValueError`` when the episode is not a whole number of control steps."""
+    if substeps is None:
+        return None
+    from offline.collect import make_env
+
+    env = make_env(env_name)
+    total = env.horizon * env.substeps
+    if isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1 \
+            or total % substeps:
+        raise ValueError(f"--substeps must be a positive divisor of the episode's {total} "
+                         f"physics steps on {env_name}, got {substeps!r}")
+    return {"substeps": substeps, "horizon": total // substeps}
+
+
+def substeps_tag(substeps: int | None) -> list:
+    """Cell-key and file-name entries of a non-default control rate (``[]`` for the
+    environment's own, so earlier results keep their keys)."""
+    return [] if substeps is None else ["substeps", int(substeps)]
+
+
 def add_checkpoint_option(parser: Any) -> None:
     """``--checkpoints DIR`` of the sweep scripts (:func:`train_program`)."""
     parser.add_argument("--checkpoints", type=Path, default=None, metavar="DIR",
@@ -340,8 +373,10 @@ __all__ = [
     "RewardBatchedState",
     "add_checkpoint_option",
     "add_learner_options",
+    "add_substeps_option",
     "apply_preset",
     "build_plain",
+    "control_rate_kwargs",
     "done_cells",
     "program_checkpoint_dir",
     "progress_printer",
@@ -355,5 +390,6 @@ __all__ = [
     "setting_changes",
     "setting_fields",
     "setting_key",
+    "substeps_tag",
     "train_program",
 ]

@@ -62,7 +62,13 @@ PRESETS = {
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     from offline.experiment import TABLE_LEARNERS
-    from offline.sweep import add_checkpoint_option, add_learner_options, apply_preset
+    from offline.sweep import (
+        add_checkpoint_option,
+        add_learner_options,
+        add_substeps_option,
+        apply_preset,
+        control_rate_kwargs,
+    )
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
@@ -90,6 +96,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--remove-terminals", action="store_true",
                    help="treat terminals (collisions) as timeouts in both datasets")
     p.add_argument("--data-seed", type=int, default=0)
+    add_substeps_option(p)
     p.add_argument("--out", type=Path, default=ROOT / "results" / "ch7")
     args = p.parse_args(argv)
     args = apply_preset(p, args, PRESETS[args.preset],
@@ -98,6 +105,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         p.error(f"--expert-scale must be >= 1 episode, got {args.expert_scale}")
     if args.expert_scale == args.scale:
         args.expert_scale = None  # the default: same data, same cell keys
+    if args.substeps is not None:
+        try:
+            for env in args.envs:
+                control_rate_kwargs(env, args.substeps)
+        except ValueError as e:
+            p.error(str(e))
     return args
 
 
@@ -106,28 +119,34 @@ def recipe_scale(args, recipe: str) -> int:
     return args.expert_scale if recipe == "expert" and args.expert_scale else args.scale
 
 
-def data_path(out: Path, env: str, recipe: str, scale: int, seed: int) -> Path:
-    return out / "data" / f"{env.replace('/', '-')}_{recipe}_x{scale}_s{seed}.npz"
+def data_path(out: Path, env: str, recipe: str, scale: int, seed: int,
+              substeps: int | None = None) -> Path:
+    from offline.sweep import substeps_tag
+
+    tag = "".join(f"_{part}" for part in substeps_tag(substeps))
+    return out / "data" / f"{env.replace('/', '-')}_{recipe}_x{scale}_s{seed}{tag}.npz"
 
 
 def collect_stage(args) -> None:
     """Collect (or find cached) the mixed and expert datasets of every environment."""
-    from offline.sweep import collect_cached
+    from offline.sweep import collect_cached, control_rate_kwargs
 
     for env in args.envs:
         for recipe in ("mixed", "expert"):
             n = recipe_scale(args, recipe)
-            collect_cached(data_path(args.out, env, recipe, n, args.data_seed), env, recipe, n,
-                           args.data_seed, f"{env} {recipe}")
+            collect_cached(data_path(args.out, env, recipe, n, args.data_seed, args.substeps),
+                           env, recipe, n, args.data_seed, f"{env} {recipe}",
+                           env_kwargs=control_rate_kwargs(env, args.substeps))
 
 
 def _cell_key(env: str, scenario: str, learner: str, args) -> str:
-    from offline.sweep import setting_key
+    from offline.sweep import setting_key, substeps_tag
 
     key = [env, scenario, learner, args.steps, list(args.hidden), args.seeds, args.scale,
            args.remove_terminals, args.eval_episodes]
     n = _expert_scale(scenario, args)
-    return json.dumps(key + setting_key(args) + ([] if n is None else ["expert_scale", n]))
+    return json.dumps(key + setting_key(args) + ([] if n is None else ["expert_scale", n])
+                      + substeps_tag(args.substeps))
 
 
 def _expert_scale(scenario: str, args) -> int | None:
@@ -145,6 +164,7 @@ def train_stage(args) -> None:
     from offline.learner import actor_params
     from offline.sweep import (
         LearningCurve,
+        control_rate_kwargs,
         done_cells,
         program_checkpoint_dir,
         progress_printer,
@@ -158,10 +178,11 @@ def train_stage(args) -> None:
                                **setting_fields(args))
     keys = experiment.seed_keys(range(args.seeds))
     for env in args.envs:
-        env_obj = collect.make_env(env)
+        env_kwargs = control_rate_kwargs(env, args.substeps)
+        env_obj = collect.make_env(env, env_kwargs)
         mixed, expert = (odata.check_environment(
             odata.load(data_path(args.out, env, recipe, recipe_scale(args, recipe),
-                                 args.data_seed)), env_obj,
+                                 args.data_seed, args.substeps)), env_obj,
             name=recipe) for recipe in ("mixed", "expert"))
         evaluator = None
         for scenario in args.scenarios:
@@ -172,7 +193,8 @@ def train_stage(args) -> None:
                 cell = _cell_key(env, scenario, learner, args)
                 if cell in done or not experiment.applicable(learner, scenario):
                     continue
-                evaluator = evaluator or evaluate.make_evaluator(env, args.eval_episodes)
+                evaluator = evaluator or evaluate.make_evaluator(env, args.eval_episodes,
+                                                                 env_kwargs=env_kwargs)
                 t0 = time.perf_counter()
                 trainer = experiment.build(learner, dyn, rd, budget, scenario)
 
@@ -194,7 +216,8 @@ def train_stage(args) -> None:
                 if curve is not None and curve.steps:  # none when resumed at the last chunk
                     ev["curve"] = curve.groups()[0]
                     train_s, eval_s = train_s - curve.seconds, eval_s + curve.seconds
-                row = {"cell": cell, "env": env, "scenario": scenario, "learner": learner,
+                row = {"cell": cell, "env": env, "substeps": args.substeps,
+                       "scenario": scenario, "learner": learner,
                        "seeds": args.seeds, "steps": args.steps, "hidden": list(args.hidden),
                        "train_s": train_s, "eval_s": eval_s,
                        "device": jax.devices()[0].device_kind,
@@ -229,13 +252,15 @@ def table_stage(args) -> dict:
     if not path.exists():
         raise SystemExit(f"no results at {path}: run --stage train first")
     rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-    # One table per learner setting and expert-set size (rows without the field: default;
-    # RL-sample rows do not depend on the expert set).
+    # One table per learner setting, expert-set size and control rate (rows without the field:
+    # default; RL-sample rows do not depend on the expert set).
     rows = [r for r in rows if same_setting(r, args) and (
-        r.get("expert_scale") == args.expert_scale or r["scenario"] in EXPERT_FREE)]
+        r.get("expert_scale") == args.expert_scale or r["scenario"] in EXPERT_FREE)
+        and r.get("substeps") == args.substeps]
     if not rows:
         settings = ", ".join(f"{k}={v}" for k, v in {**setting_fields(args),
-                                                     "expert_scale": args.expert_scale}.items())
+                                                     "expert_scale": args.expert_scale,
+                                                     "substeps": args.substeps}.items())
         raise SystemExit(f"no results with {settings} in {path}")
     cells: dict = {}
     for r in rows:

@@ -121,7 +121,12 @@ PRESETS = {
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     from offline.collect import RECIPES
     from offline.survival import REWARD_VARIANTS, TERMINAL_MODES
-    from offline.sweep import add_checkpoint_option, add_learner_options, apply_preset
+    from offline.sweep import (
+        add_checkpoint_option,
+        add_learner_options,
+        add_substeps_option,
+        apply_preset,
+    )
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
@@ -165,11 +170,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         "sources of offline.collect")
     p.add_argument("--ppo-step", type=int, default=None,
                    help="the run's checkpoint that counts as 'medium' (default: its newest)")
-    p.add_argument("--substeps", type=int, default=None, metavar="N",
-                   help="physics substeps per control step (default: the environment's 3, i.e. "
-                        "80 Hz; 24 is 10 Hz). The horizon keeps the episode length in seconds; "
-                        "--goal-deadline counts control steps at this rate. Data files and "
-                        "cell keys get their own names")
+    add_substeps_option(p)
     p.add_argument("--out", type=Path, default=ROOT / "results" / "ch8")
     args = p.parse_args(argv)
     args = apply_preset(p, args, PRESETS[args.preset],
@@ -244,24 +245,17 @@ def _ppo_tag(args) -> list:
 
 
 def env_kwargs(args) -> dict[str, int] | None:
-    """The environment's constructor arguments for ``--substeps`` (None: its defaults): that
-    many physics substeps per control step, and the horizon that keeps the episode's length in
-    seconds. Raises ``ValueError`` when the episode is not a whole number of control steps."""
-    if args.substeps is None:
-        return None
-    from offline.collect import make_env
+    """The environment's constructor arguments for ``--substeps``
+    (:func:`offline.sweep.control_rate_kwargs`; None: its defaults)."""
+    from offline.sweep import control_rate_kwargs
 
-    env = make_env(ENV)
-    total = env.horizon * env.substeps
-    if args.substeps < 1 or total % args.substeps:
-        raise ValueError(f"--substeps must be a positive divisor of the episode's {total} "
-                         f"physics steps, got {args.substeps}")
-    return {"substeps": int(args.substeps), "horizon": total // args.substeps}
+    return control_rate_kwargs(ENV, args.substeps)
 
 
 def _substeps_tag(args) -> list:
-    """What identifies a non-default control rate (``[]`` for the environment's own)."""
-    return [] if args.substeps is None else ["substeps", int(args.substeps)]
+    from offline.sweep import substeps_tag
+
+    return substeps_tag(args.substeps)
 
 
 def data_path(args, recipe: str, cut: bool) -> Path:

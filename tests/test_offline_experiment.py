@@ -176,6 +176,36 @@ def test_ch7_and_ch8_keep_standardised_observation_runs_apart(tmp_path):
         reproduce_ch7.table_stage(on)
 
 
+def test_ch7_control_rate_gets_its_own_data_cells_and_table(tmp_path):
+    """``--substeps N``: data files, cell keys and the table of another control rate are kept
+    apart from the default ones (shared helper :func:`offline.sweep.control_rate_kwargs`,
+    which also refuses a rate that does not divide the episode)."""
+    from offline.sweep import control_rate_kwargs
+    from scripts import reproduce_ch7
+
+    base = ["--out", str(tmp_path), "--envs", "three_link/env3",
+            "--actor-rate", "scaled"]  # the settings of rows without setting fields
+    plain, rate = (reproduce_ch7.parse_args(base + extra) for extra in ([], ["--substeps", "24"]))
+    assert control_rate_kwargs("three_link/env3", 24) == {"substeps": 24, "horizon": 75}
+    assert control_rate_kwargs("three_link/env3", None) is None
+    with pytest.raises(ValueError, match="substeps"):
+        control_rate_kwargs("three_link/env3", 7)
+    with pytest.raises(SystemExit):
+        reproduce_ch7.parse_args([*base, "--substeps", "7"])
+    assert reproduce_ch7.data_path(tmp_path, "three_link/env3", "mixed", 2, 0, 24).name == (
+        "three_link-env3_mixed_x2_s0_substeps_24.npz")
+    assert reproduce_ch7.data_path(tmp_path, "three_link/env3", "mixed", 2, 0).name == (
+        "three_link-env3_mixed_x2_s0.npz")
+    cells = [reproduce_ch7._cell_key("three_link/env3", "ILfO", "BC", a) for a in (plain, rate)]
+    assert cells[0] != cells[1] and json.loads(cells[1])[-2:] == ["substeps", 24]
+    with open(tmp_path / "results.jsonl", "w") as f:
+        f.write(json.dumps({"env": "three_link/env3", "scenario": "ILfO", "learner": "BC",
+                            "normalized_score": [1, 2], "safe_pct": [100, 100]}) + "\n")
+    assert reproduce_ch7.table_stage(plain)["cells"] == 1
+    with pytest.raises(SystemExit, match="substeps=24"):
+        reproduce_ch7.table_stage(rate)
+
+
 def test_ch7_expert_set_size_gets_its_own_data_cells_and_table(tmp_path):
     """``--expert-scale N``: the expert dataset has N episodes (its own cached file), cells get
     their own key (equal to ``--scale`` is the default and keeps the keys) except in RL-sample,
