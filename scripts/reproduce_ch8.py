@@ -252,15 +252,11 @@ def env_kwargs(args) -> dict[str, int] | None:
     return control_rate_kwargs(ENV, args.substeps)
 
 
-def _substeps_tag(args) -> list:
+def data_path(args, recipe: str, cut: bool) -> Path:
     from offline.sweep import substeps_tag
 
-    return substeps_tag(args.substeps)
-
-
-def data_path(args, recipe: str, cut: bool) -> Path:
     mode = "cut" if cut else "full"
-    tag = "".join(f"_{part}" for part in _ppo_tag(args) + _substeps_tag(args))
+    tag = "".join(f"_{part}" for part in _ppo_tag(args) + substeps_tag(args.substeps))
     return (args.out / "data" /
             f"{ENV.replace('/', '-')}_{recipe}_{mode}_x{args.scale}_s{args.data_seed}{tag}.npz")
 
@@ -305,10 +301,11 @@ def _cell_key(dataset: str, learner: str, reward: str, args) -> str:
     margin = args.margin if split_name(dataset)[2] else None
     key = [dataset, learner, reward, args.terminals, args.steps, list(args.hidden), args.seeds,
            args.batch, args.scale, args.eval_episodes, margin]
-    from offline.sweep import setting_key
+    from offline.sweep import setting_key, substeps_tag
 
     deadline = ["goal_deadline", args.goal_deadline] if is_deadline(dataset) else []
-    return json.dumps(key + deadline + _ppo_tag(args) + _substeps_tag(args) + setting_key(args))
+    return json.dumps(key + deadline + _ppo_tag(args) + substeps_tag(args.substeps)
+                      + setting_key(args))
 
 
 class _Evaluation:
