@@ -1,0 +1,18 @@
+#!/bin/bash
+# Session 13, call B: chapter-7 table at 10 Hz on the 3-link with 100 expert episodes: ILfO, IL, RLfO.
+# .exp/results_*.jsonl is the results.jsonl that the previous calls returned (carried with the driver).
+python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl
+export PYTHONPATH=/tmp/site:. PYTHONUNBUFFERED=1 XLA_PYTHON_CLIENT_PREALLOCATE=false
+W=/tmp/ch7_10hz; O=$OUT/x; mkdir -p $O $W
+cp .exp/results_a.jsonl $W/results.jsonl
+H="python3 scripts/reproduce_ch7.py --preset gpu --substeps 24 --scale 400 --steps 50000 --chunk 50000 --actor nn_residual --envs three_link/env3 --out $W --expert-scale 100"
+$H --stage collect > $O/collect100.log 2>&1
+T="timeout 545"
+for l in AP Oracle; do $T $H --stage train --scenarios ILfO --learners $l > $O/t_ilfo_$l.log 2>&1 & done
+for l in MAHALO RP AP UDS ATAC Oracle; do $T $H --stage train --scenarios IL --learners $l > $O/t_il_$l.log 2>&1 & done
+for l in MAHALO RP AP Oracle; do $T $H --stage train --scenarios RLfO --learners $l > $O/t_rlfo_$l.log 2>&1 & done
+$T $H --stage train --scenarios ILfO IL RLfO --learners BC BCO > $O/t_bc.log 2>&1 &
+wait
+$H --stage table --scenarios ILfO IL RLfO > $O/table100.log 2>&1
+cp $O/*.log $W/; cd /tmp && tar czf $OUT/ch7_10hz_b.tgz --exclude='ch7_10hz/data' ch7_10hz
+grep -h "\[train\]" $O/t*.log; tail -8 $O/table100.log
