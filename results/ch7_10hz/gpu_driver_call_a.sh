@@ -1,7 +1,7 @@
 #!/bin/bash
 # Session 13, call A: chapter-7 table at 10 Hz on the 3-link (ILfO, IL, RLfO; 10 expert episodes),
-# The grep starts from session 12's results.jsonl without its MAHALO row (rerun here with --curve).
 # MAHALO learning curves, and the ILfO cell with 100 expert episodes.
+# The grep starts from session 12's results.jsonl without its MAHALO row (rerun here with --curve).
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl
 export PYTHONPATH=/tmp/site:. PYTHONUNBUFFERED=1 XLA_PYTHON_CLIENT_PREALLOCATE=false
 W=/tmp/ch7_10hz; O=$OUT/x; mkdir -p $O $W

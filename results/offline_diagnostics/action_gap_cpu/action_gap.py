@@ -1,8 +1,11 @@
-"""One-step action gap of the expert's Q on 3-link env3 (session 12).
+"""One-step action gap of the expert's Q (session 12; environment and control rate added in
+session 13).
 
 From 64 scenes: the expert for T0 steps, then one control step of the expert's action, its
 negation, zero, +1 or -1 on every joint, then the expert for 400 steps; discounted returns
-(gamma 0.99) of the five branches. Usage: python action_gap.py T0
+(gamma 0.99) of the five branches. Usage: python action_gap.py T0 [ENV] [SUBSTEPS]
+(default three_link/env3 at the environment's 3 substeps, 80 Hz; 24 substeps is 10 Hz with the
+same 7.5 s episodes).
 """
 import sys
 
@@ -12,8 +15,11 @@ import numpy as np
 
 from envs.evaluate import hand_designed_policy
 from offline import collect
+from offline.sweep import control_rate_kwargs
 
-ENV = collect.make_env("three_link/env3")
+ENV_NAME = sys.argv[2] if len(sys.argv) > 2 else "three_link/env3"
+SUBSTEPS = int(sys.argv[3]) if len(sys.argv) > 3 else None
+ENV = collect.make_env(ENV_NAME, control_rate_kwargs(ENV_NAME, SUBSTEPS))
 EXPERT = hand_designed_policy(ENV)
 GAMMA, HORIZON = 0.99, 400
 
@@ -47,7 +53,7 @@ def main() -> None:
     t0 = int(sys.argv[1])
     keys = jax.random.split(jax.random.PRNGKey(3), 64)
     q = np.asarray(jax.jit(jax.vmap(lambda k: branches(k, t0)))(keys))
-    print(f"T0 {t0} Q(expert) mean {q[:, 0].mean():.3f} "
+    print(f"{ENV_NAME} substeps {SUBSTEPS or 3} T0 {t0} Q(expert) mean {q[:, 0].mean():.3f} "
           f"|Q(ex)-Q(-ex)| mean {np.abs(q[:, 0] - q[:, 1]).mean():.4f} "
           f"|Q(ex)-Q(0)| {np.abs(q[:, 0] - q[:, 2]).mean():.4f} "
           f"|Q(+1)-Q(-1)| {np.abs(q[:, 3] - q[:, 4]).mean():.4f} "
