@@ -296,9 +296,10 @@ def table_stage(args) -> dict:
             summary["cells"] += 1
             if "MAHALO" in here and here["MAHALO"][0] >= thresh:
                 summary["mahalo_within_90"] += 1
-            if scenario == "ILfO" and "MAHALO" in here:
-                summary["mahalo_beats_bc_bco_ilfo"][env] = bool(all(
-                    here["MAHALO"][0] > here[b][0] for b in ("BC", "BCO") if b in here))
+            if scenario == "ILfO" and "MAHALO" in here:  # None: BC or BCO not run
+                summary["mahalo_beats_bc_bco_ilfo"][env] = (
+                    bool(all(here["MAHALO"][0] > here[b][0] for b in ("BC", "BCO")))
+                    if all(b in here for b in ("BC", "BCO")) else None)
     text = "\n".join(md)
     note = (f"\nMAHALO within 90 % of the best non-Oracle score in "
             f"{summary['mahalo_within_90']} of {summary['cells']} scenario × dataset cells; "
