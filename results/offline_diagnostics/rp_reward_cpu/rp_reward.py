@@ -30,11 +30,8 @@ def main() -> None:
     state = jax.jit(make_train_rp(dyn, cfg, reward_data=rd).init)(jax.random.PRNGKey(0), 16.0)
     g = make_reward_net(rd, cfg.reward, observation_size=dyn.observation_size,
                         remove_terminals=False, learner="RP")
-    batch = jax.device_put(dyn.replace(observations=np.asarray(dyn.observations, np.float32),
-                                       next_observations=np.asarray(dyn.next_observations,
-                                                                    np.float32)))
-    pred = np.asarray(g.predict(state.params["reward"], batch)).reshape(-1)
-    on_expert = np.asarray(g.predict(state.params["reward"], g_batch(rd))).reshape(-1)
+    pred = np.asarray(g.predict(state.params["reward"], float32_states(dyn))).reshape(-1)
+    on_expert = np.asarray(g.predict(state.params["reward"], float32_states(rd))).reshape(-1)
     true = np.asarray(mixed.rewards, np.float64)
     src = collect.source_of_episodes(mixed)
     term = np.asarray(mixed.terminals, bool)
@@ -50,10 +47,11 @@ def main() -> None:
           f"corr(g, true reward) {np.corrcoef(pred, true)[0, 1]:.3f}")
 
 
-def g_batch(rd):
-    return jax.device_put(rd.replace(observations=np.asarray(rd.observations, np.float32),
-                                     next_observations=np.asarray(rd.next_observations,
-                                                                  np.float32)))
+def float32_states(d):
+    """``d`` (dynamics or reward data) with float32 states, on the device: g's input."""
+    return jax.device_put(d.replace(observations=np.asarray(d.observations, np.float32),
+                                    next_observations=np.asarray(d.next_observations,
+                                                                 np.float32)))
 
 
 if __name__ == "__main__":
