@@ -24,10 +24,11 @@ Stages (``--stage all`` runs them in order; each is resumable):
    time limit) continues from its last chunk when the command is run again. With ``--curve``
    every seed is also scored after each chunk, the same way as its last iterate (the rows'
    ``curve``: steps and per-seed results per step).
-3. **table** — ``OUT/table.md`` and ``OUT/table.csv`` (of the cells with the same
-   ``--normalize-observations`` setting): mean ± standard error over seeds per
-   cell; in each row the entries within 90 % of the best non-Oracle score are bold (thesis
-   Table 7.3's rule).
+3. **table** — ``OUT/table.md`` and ``OUT/table.csv`` (of the ``--envs`` cells the same
+   command's train stage makes: same steps, seeds, network, data and expert-set sizes,
+   terminal handling, evaluation episodes, learner settings and control rate): mean ±
+   standard error over seeds per cell; in each row the entries within 90 % of the best
+   non-Oracle score are bold (thesis Table 7.3's rule).
 """
 
 from __future__ import annotations
@@ -245,22 +246,22 @@ def _fmt(mean: float, se: float, bold: bool) -> str:
 def table_stage(args) -> dict:
     """Write and print the Table 7.3-style table; return the per-cell summary."""
     from offline.experiment import TABLE_LEARNERS
-    from offline.scenarios import EXPERT_FREE
-    from offline.sweep import same_setting, setting_fields
+    from offline.sweep import setting_fields
 
     path = args.out / "results.jsonl"
     if not path.exists():
         raise SystemExit(f"no results at {path}: run --stage train first")
     rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-    # One table per learner setting, expert-set size and control rate (rows without the field:
-    # default; RL-sample rows do not depend on the expert set).
-    rows = [r for r in rows if same_setting(r, args) and (
-        r.get("expert_scale") == args.expert_scale or r["scenario"] in EXPERT_FREE)
-        and r.get("substeps") == args.substeps]
+    # The cells of ``--envs`` with the key ``args`` gives them: run budget (steps, seeds,
+    # network, data scale, terminals, evaluation episodes), learner setting, expert-set size and
+    # control rate (RL-sample keys do not depend on the expert set).
+    rows = [r for r in rows if r["env"] in args.envs
+            and r["cell"] == _cell_key(r["env"], r["scenario"], r["learner"], args)]
     if not rows:
-        settings = ", ".join(f"{k}={v}" for k, v in {**setting_fields(args),
-                                                     "expert_scale": args.expert_scale,
-                                                     "substeps": args.substeps}.items())
+        settings = ", ".join(f"{k}={v}" for k, v in {
+            "steps": args.steps, "seeds": args.seeds, "scale": args.scale,
+            **setting_fields(args), "expert_scale": args.expert_scale,
+            "substeps": args.substeps}.items())
         raise SystemExit(f"no results with {settings} in {path}")
     cells: dict = {}
     for r in rows:

@@ -133,16 +133,26 @@ def test_beta_grid_in_one_program_equals_runs_at_each_beta(data):
         experiment.init_runs(trainer, keys, [1.0, 2.0, 3.0])
 
 
+def _ch7_row(args, env: str, scenario: str, learner: str, scores: list) -> dict:
+    """A results row of ``reproduce_ch7`` with the cell key ``args`` gives it."""
+    from scripts import reproduce_ch7
+
+    return {"cell": reproduce_ch7._cell_key(env, scenario, learner, args), "env": env,
+            "scenario": scenario, "learner": learner, "normalized_score": scores,
+            "safe_pct": [100] * len(scores)}
+
+
 def test_ch7_table_bolds_entries_within_90_percent_of_the_best_non_oracle(tmp_path):
     from scripts import reproduce_ch7
 
     scores = {"MAHALO": [85, 91], "BC": [50, 52], "BCO": [95, 95], "Oracle": [200, 200]}
+    args = reproduce_ch7.parse_args(["--stage", "table", "--out", str(tmp_path), "--envs", "e"])
+    more_seeds = reproduce_ch7.parse_args(["--out", str(tmp_path), "--envs", "e", "--seeds", "10"])
     with open(tmp_path / "results.jsonl", "w") as f:
         for learner, s in scores.items():
-            f.write(json.dumps({"env": "e", "scenario": "ILfO", "learner": learner,
-                                "actor_rate": "published", "normalized_score": s,
-                                "safe_pct": [100, 100]}) + "\n")
-    args = reproduce_ch7.parse_args(["--stage", "table", "--out", str(tmp_path)])
+            f.write(json.dumps(_ch7_row(args, "e", "ILfO", learner, s)) + "\n")
+        # A 10-seed run of the same learner is another cell: it does not replace the 5-seed one.
+        f.write(json.dumps(_ch7_row(more_seeds, "e", "ILfO", "MAHALO", [0] * 10)) + "\n")
     summary = reproduce_ch7.table_stage(args)
     table = (tmp_path / "table.md").read_text()
     assert "**88.0 ± 3.0**" in table and "**95.0 ± 0.0**" in table  # 88 >= 0.9 · 95
@@ -163,7 +173,7 @@ def test_ch7_and_ch8_keep_standardised_observation_runs_apart(tmp_path):
     from scripts import reproduce_ch7, reproduce_ch8
 
     base = ["--out", str(tmp_path), "--actor-rate", "scaled"]  # the settings of old results
-    off, on = (reproduce_ch7.parse_args(base + extra)
+    off, on = (reproduce_ch7.parse_args([*base, "--envs", "e", *extra])
                for extra in ([], ["--normalize-observations"]))
     assert reproduce_ch7._cell_key("e", "IL", "BC", off) != reproduce_ch7._cell_key(
         "e", "IL", "BC", on)
@@ -174,9 +184,8 @@ def test_ch7_and_ch8_keep_standardised_observation_runs_apart(tmp_path):
     assert reproduce_ch8._cell_key("mixed-cut", "ATAC", "zero", off8) != reproduce_ch8._cell_key(
         "mixed-cut", "ATAC", "zero", on8)
     with open(tmp_path / "results.jsonl", "w") as f:
-        f.write(json.dumps({"env": "e", "scenario": "ILfO", "learner": "BC",
-                            "normalized_score": [1, 2], "safe_pct": [100, 100]}) + "\n")
-    assert reproduce_ch7.table_stage(off)["cells"] == 1  # rows without the field count as off
+        f.write(json.dumps(_ch7_row(off, "e", "ILfO", "BC", [1, 2])) + "\n")
+    assert reproduce_ch7.table_stage(off)["cells"] == 1
     with pytest.raises(SystemExit, match="normalize_observations=True"):
         reproduce_ch7.table_stage(on)
 
@@ -204,8 +213,7 @@ def test_ch7_control_rate_gets_its_own_data_cells_and_table(tmp_path):
     cells = [reproduce_ch7._cell_key("three_link/env3", "ILfO", "BC", a) for a in (plain, rate)]
     assert cells[0] != cells[1] and json.loads(cells[1])[-2:] == ["substeps", 24]
     with open(tmp_path / "results.jsonl", "w") as f:
-        f.write(json.dumps({"env": "three_link/env3", "scenario": "ILfO", "learner": "BC",
-                            "normalized_score": [1, 2], "safe_pct": [100, 100]}) + "\n")
+        f.write(json.dumps(_ch7_row(plain, "three_link/env3", "ILfO", "BC", [1, 2])) + "\n")
     assert reproduce_ch7.table_stage(plain)["cells"] == 1
     with pytest.raises(SystemExit, match="substeps=24"):
         reproduce_ch7.table_stage(rate)
@@ -218,7 +226,7 @@ def test_ch7_expert_set_size_gets_its_own_data_cells_and_table(tmp_path):
     rows), and N < 1 is refused."""
     from scripts import reproduce_ch7
 
-    base = ["--out", str(tmp_path), "--scale", "4"]
+    base = ["--out", str(tmp_path), "--envs", "e", "--scale", "4"]
     plain, same, small = (reproduce_ch7.parse_args(base + extra) for extra in
                           ([], ["--expert-scale", "4"], ["--expert-scale", "1"]))
     assert same.expert_scale is None
@@ -229,12 +237,9 @@ def test_ch7_expert_set_size_gets_its_own_data_cells_and_table(tmp_path):
     assert [reproduce_ch7.recipe_scale(small, r) for r in ("mixed", "expert")] == [4, 1]
     assert [reproduce_ch7.recipe_scale(plain, r) for r in ("mixed", "expert")] == [4, 4]
     with open(tmp_path / "results.jsonl", "w") as f:
-        for sc, n, score in (("ILfO", None, [1, 2]), ("ILfO", 1, [5, 7]),
-                             ("RL-sample", None, [3, 3])):
-            f.write(json.dumps({"env": "e", "scenario": sc, "learner": "BC",
-                                "actor_rate": "published", "expert_scale": n,
-                                "normalized_score": score,
-                                "safe_pct": [100, 100]}) + "\n")
+        for sc, a, score in (("ILfO", plain, [1, 2]), ("ILfO", small, [5, 7]),
+                             ("RL-sample", plain, [3, 3])):
+            f.write(json.dumps(_ch7_row(a, "e", sc, "BC", score)) + "\n")
     assert reproduce_ch7.table_stage(small)["cells"] == 2  # ILfO and the shared RL-sample row
     assert "6.0 ± 1.0" in (tmp_path / "table.md").read_text()
     reproduce_ch7.table_stage(plain)
