@@ -220,12 +220,6 @@ def setting_key(args: Any) -> list:
     return key
 
 
-def same_setting(row: Mapping[str, Any], args: Any) -> bool:
-    """Whether a result row was made with the learner settings of ``args`` (rows from before a
-    setting existed have its :data:`ORIGINAL_SETTINGS` value)."""
-    return all(row.get(k, ORIGINAL_SETTINGS[k]) == v for k, v in setting_fields(args).items())
-
-
 def apply_preset(parser: Any, args: Any, preset: Mapping[str, Any],
                  positive: Sequence[str]) -> Any:
     """Fill the arguments left at ``None`` from ``preset`` and refuse (``parser.error``) any of
@@ -386,7 +380,6 @@ __all__ = [
     "reward_seed_keys",
     "run_actor_params",
     "run_stages",
-    "same_setting",
     "setting_changes",
     "setting_fields",
     "setting_key",
