@@ -70,6 +70,9 @@ LEARNERS = (*TABLE_LEARNERS, "PSPI", "IQL", "CQL")
 BETA_LEARNERS = ("MAHALO", "RP", "AP", "UDS", "ATAC", "Oracle", "PSPI")
 #: Learners that need action-labelled reward data (a reward dataset overlapping ``D_A``).
 NEEDS_SHARED = ("UDS", "ATAC")
+#: Learners whose run reads only the dynamics data (with its true rewards): one run serves every
+#: scenario of :func:`offline.scenarios.same_dynamics`.
+DYNAMICS_ONLY = ("Oracle",)
 #: ATAC's published length and actor rate (ANCHOR_FACTS §5).
 REFERENCE_STEPS = 1_000_000
 REFERENCE_ACTOR_LR = 5e-7
@@ -282,6 +285,7 @@ __all__ = [
     "ACTOR_RATES",
     "BETA_LEARNERS",
     "DEFAULT_WARMSTART",
+    "DYNAMICS_ONLY",
     "LEARNERS",
     "NEEDS_SHARED",
     "TABLE_LEARNERS",

@@ -73,6 +73,8 @@ REWARD_FIELDS = ("observations", "rewards", "next_observations", "terminals", "t
                  "episode_ids")
 #: Scenarios whose data does not depend on the expert dataset (reward data from ``D_X``).
 EXPERT_FREE = ("RL-sample",)
+#: Scenarios whose dynamics data holds the expert's transitions with actions (``D_X ∪ D_E``).
+WITH_EXPERT_ACTIONS = ("IL", "RL-expert")
 #: Default labelled fraction of RL-sample's episodes (thesis §7.4.2).
 RL_SAMPLE_FRACTION = 0.5
 
@@ -234,7 +236,7 @@ def make(name: str, mixed: odata.Dataset, expert: odata.Dataset | None = None, *
         # Ids as in concatenate(mixed, expert): the expert's episodes follow the mixed ones.
         expert = expert.replace(episode_ids=(np.asarray(expert.episode_ids) + k
                                              ).astype(np.int32))
-        with_actions = name in ("IL", "RL-expert")
+        with_actions = name in WITH_EXPERT_ACTIONS
         dyn_parts = [mixed, expert] if with_actions else [mixed]
         label = _max_reward(expert, max_reward) if name in ("ILfO", "IL") else None
         rd = reward_data(expert, reward=label, metadata={
@@ -248,6 +250,18 @@ def make(name: str, mixed: odata.Dataset, expert: odata.Dataset | None = None, *
         dynamics = terminals_as_timeouts(dynamics)
         rd = terminals_as_timeouts(rd)
     return dynamics, rd
+
+
+def same_dynamics(name: str) -> tuple[str, ...]:
+    """The scenarios whose dynamics data is the same as scenario ``name``'s (module docstring
+    table): ``D_X ∪ D_E`` in IL and RL-expert, ``D_X`` in ILfO, RLfO and RL-sample. A learner that
+    reads only the dynamics data with its true rewards (the Oracle) does the same computation in
+    all of them."""
+    if name not in SCENARIOS:
+        raise ValueError(f"unknown scenario name={name!r}; valid scenarios are "
+                         f"{list(SCENARIOS)}")
+    group = name in WITH_EXPERT_ACTIONS
+    return tuple(s for s in SCENARIOS if (s in WITH_EXPERT_ACTIONS) == group)
 
 
 def ilfo(mixed: odata.Dataset, expert: odata.Dataset, **kwargs):
@@ -279,6 +293,7 @@ __all__ = [
     "REWARD_FIELDS",
     "RL_SAMPLE_FRACTION",
     "SCENARIOS",
+    "WITH_EXPERT_ACTIONS",
     "RewardData",
     "il",
     "ilfo",
@@ -288,6 +303,7 @@ __all__ = [
     "rl_expert",
     "rl_sample",
     "rlfo",
+    "same_dynamics",
     "save_reward_data",
     "terminals_as_timeouts",
     "validate_reward_data",

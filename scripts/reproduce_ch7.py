@@ -19,7 +19,10 @@ Stages (``--stage all`` runs them in order; each is resumable):
    ``--steps`` gradient steps (:class:`offline.experiment.Budget`), then ``--eval-episodes``
    episodes per seed in the environment (:mod:`offline.evaluate`, normalised score: uniform
    random 0, hand-designed expert 100; last iterate). One JSON line per cell in
-   ``OUT/results.jsonl``; cells already there are skipped. With ``--checkpoints DIR`` every
+   ``OUT/results.jsonl``; cells already there are skipped. The Oracle reads only the dynamics
+   data, so it is trained once per dynamics dataset (``D_X`` in ILfO, RLfO and RL-sample;
+   ``D_X ∪ D_E`` in IL and RL-expert): a scenario whose sibling's Oracle row is already there
+   gets a copy of that row, marked ``shared_from``. With ``--checkpoints DIR`` every
    cell's state is also saved after each ``--chunk`` steps, and a cell interrupted (e.g. by a
    time limit) continues from its last chunk when the command is run again. With ``--curve``
    every seed is also scored after each chunk, the same way as its last iterate (the rows'
@@ -194,6 +197,10 @@ def train_stage(args) -> None:
                 cell = _cell_key(env, scenario, learner, args)
                 if cell in done or not experiment.applicable(learner, scenario):
                     continue
+                if learner in experiment.DYNAMICS_ONLY and _share_run(
+                        results, cell, env, scenario, learner, args, int(rd.size)):
+                    done.add(cell)
+                    continue
                 evaluator = evaluator or evaluate.make_evaluator(env, args.eval_episodes,
                                                                  env_kwargs=env_kwargs)
                 t0 = time.perf_counter()
@@ -236,6 +243,34 @@ def train_stage(args) -> None:
                 print(f"[train] {env} {scenario:9s} {learner:6s}: score {score.mean():7.1f} ± "
                       f"{score.std(ddof=1) / math.sqrt(len(score)):5.1f}  safe "
                       f"{np.mean(ev['safe_pct']):5.1f} %  ({train_s:.0f} s train)", flush=True)
+
+
+def _share_run(results: Path, cell: str, env: str, scenario: str, learner: str, args,
+               reward_transitions: int) -> bool:
+    """Append ``cell``'s row as a copy of a finished run of ``learner`` (one of
+    :data:`offline.experiment.DYNAMICS_ONLY`) in a scenario with the same dynamics data
+    (:func:`offline.scenarios.same_dynamics`), if there is one: the same computation, so the
+    Oracle is trained once per dynamics dataset, as thesis Table 7.3 reports one Oracle score for
+    RLfO and RL-expert. The row records ``shared_from``. Returns whether it did."""
+    from offline.scenarios import same_dynamics
+
+    rows = {}
+    if results.exists():
+        rows = {r["cell"]: r for r in (json.loads(line) for line in
+                                       results.read_text().splitlines() if line.strip())}
+    for other in same_dynamics(scenario):
+        source = rows.get(_cell_key(env, other, learner, args))
+        if source is not None and other != scenario:
+            row = {**source, "cell": cell, "scenario": scenario,
+                   "expert_scale": _expert_scale(scenario, args),
+                   "reward_transitions": reward_transitions,
+                   "shared_from": source.get("shared_from", source["cell"])}
+            with open(results, "a") as f:
+                f.write(json.dumps(row) + "\n")
+            print(f"[train] {env} {scenario:9s} {learner:6s}: the run of {other} (same dynamics "
+                  f"data)", flush=True)
+            return True
+    return False
 
 
 def _fmt(mean: float, se: float, bold: bool) -> str:
@@ -281,8 +316,9 @@ def table_stage(args) -> dict:
                     if (env, scenario, lrn) in cells}
             if not here:
                 continue
-            best = max(v[0] for k, v in here.items() if k != "Oracle")
-            thresh = best - 0.1 * abs(best)
+            # Bold: within 90 % of the best non-Oracle score (none bold in an Oracle-only row).
+            others = [v[0] for k, v in here.items() if k != "Oracle"]
+            thresh = max(others) - 0.1 * abs(max(others)) if others else math.inf
             entries = []
             for lrn in TABLE_LEARNERS:
                 if lrn not in here:

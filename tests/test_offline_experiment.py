@@ -270,6 +270,33 @@ def test_ch7_learning_curves_end_at_the_final_scores(tmp_path):
     assert row["eval_s"] > 0 and row["train_s"] > 0
 
 
+def test_ch7_oracle_is_trained_once_per_dynamics_dataset(tmp_path):
+    """The Oracle reads only the dynamics data: ILfO, RLfO and RL-sample share ``D_X``, so one
+    run gives all three rows (the later two copies marked ``shared_from``); IL and RL-expert
+    share ``D_X ∪ D_E``."""
+    from offline.scenarios import same_dynamics
+    from scripts import reproduce_ch7
+
+    assert same_dynamics("RLfO") == ("ILfO", "RLfO", "RL-sample")
+    assert same_dynamics("IL") == same_dynamics("RL-expert") == ("IL", "RL-expert")
+    argv = ["--out", str(tmp_path), "--scale", "1", "--steps", "20", "--chunk", "20",
+            "--hidden", "16", "16", "--seeds", "2", "--eval-episodes", "2",
+            "--scenarios", "ILfO", "RLfO", "RL-sample", "--learners", "Oracle"]
+    reproduce_ch7.main(argv)
+    rows = [json.loads(x) for x in (tmp_path / "results.jsonl").read_text().splitlines()]
+    assert [r["scenario"] for r in rows] == ["ILfO", "RLfO", "RL-sample"]
+    first, *shared = rows
+    assert "shared_from" not in first and first["train_s"] > 0
+    args = reproduce_ch7.parse_args(argv)
+    for r in shared:
+        assert r["shared_from"] == first["cell"]
+        assert r["cell"] == reproduce_ch7._cell_key(r["env"], r["scenario"], "Oracle", args)
+        assert r["normalized_score"] == first["normalized_score"]
+    assert rows[1]["reward_transitions"] != rows[2]["reward_transitions"]  # expert vs sample
+    reproduce_ch7.main([*argv, "--stage", "train"])  # resumable: nothing new
+    assert len((tmp_path / "results.jsonl").read_text().splitlines()) == 3
+
+
 def test_train_offline_refuses_bad_arguments(tmp_path, capsys):
     from scripts import train_offline
 
