@@ -261,7 +261,7 @@ def _share_run(results: Path, cell: str, env: str, scenario: str, learner: str, 
     for other in same_dynamics(scenario):
         source = rows.get(_cell_key(env, other, learner, args))
         if source is not None and other != scenario:
-            row = {**source, "cell": cell, "scenario": scenario,
+            row = {**source, "cell": cell, "scenario": scenario, "train_s": 0.0, "eval_s": 0.0,
                    "expert_scale": _expert_scale(scenario, args),
                    "reward_transitions": reward_transitions,
                    "shared_from": source.get("shared_from", source["cell"])}

@@ -289,7 +289,7 @@ def test_ch7_oracle_is_trained_once_per_dynamics_dataset(tmp_path):
     assert "shared_from" not in first and first["train_s"] > 0
     args = reproduce_ch7.parse_args(argv)
     for r in shared:
-        assert r["shared_from"] == first["cell"]
+        assert r["shared_from"] == first["cell"] and r["train_s"] == 0
         assert r["cell"] == reproduce_ch7._cell_key(r["env"], r["scenario"], "Oracle", args)
         assert r["normalized_score"] == first["normalized_score"]
     assert rows[1]["reward_transitions"] != rows[2]["reward_transitions"]  # expert vs sample
