@@ -601,7 +601,8 @@ def _plot(args, cells: dict, bias: dict, lengths: dict) -> None:
             ax.set_title(f"{d} — {lrn}", fontsize=8)
             if j == 0:
                 ax.set_ylabel("normalised score")
-    fig.suptitle("Fig 8.4 (env3): last-iterate normalised score ± s.e. per data reward; "
+    sep = "\n" if len(learners) < 3 else " "  # one or two columns are too narrow for one line
+    fig.suptitle(f"Fig 8.4 (env3): last-iterate normalised score ± s.e.{sep}per data reward; "
                  "dashed: BC", fontsize=9)
     fig.tight_layout()
     fig.savefig(args.out / "fig8_4.png", dpi=110)
