@@ -119,14 +119,19 @@ def run_actor_params(state: Any) -> Any:
     return actor_params(state.inner if isinstance(state, RewardBatchedState) else state)
 
 
+def result_rows(results: Path) -> list[dict[str, Any]]:
+    """The rows of a results JSONL file, one dict per non-empty line (empty when the file does
+    not exist)."""
+    if not results.exists():
+        return []
+    return [json.loads(line) for line in results.read_text().splitlines() if line.strip()]
+
+
 def done_cells(results: Path) -> set[str]:
     """The ``"cell"`` keys already in a results JSONL file (empty when it does not exist):
     the resumable scripts (``scripts/reproduce_ch7.py``, ``scripts/reproduce_ch8.py``) skip
     them."""
-    if not results.exists():
-        return set()
-    return {json.loads(line)["cell"] for line in results.read_text().splitlines()
-            if line.strip()}
+    return {r["cell"] for r in result_rows(results)}
 
 
 def add_learner_options(parser: Any) -> None:
@@ -374,6 +379,7 @@ __all__ = [
     "done_cells",
     "program_checkpoint_dir",
     "progress_printer",
+    "result_rows",
     "reward_batched",
     "reward_key",
     "reward_rows",

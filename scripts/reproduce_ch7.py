@@ -253,11 +253,9 @@ def _share_run(results: Path, cell: str, env: str, scenario: str, learner: str, 
     Oracle is trained once per dynamics dataset, as thesis Table 7.3 reports one Oracle score for
     RLfO and RL-expert. The row records ``shared_from``. Returns whether it did."""
     from offline.scenarios import same_dynamics
+    from offline.sweep import result_rows
 
-    rows = {}
-    if results.exists():
-        rows = {r["cell"]: r for r in (json.loads(line) for line in
-                                       results.read_text().splitlines() if line.strip())}
+    rows = {r["cell"]: r for r in result_rows(results)}  # read afresh: other processes append
     for other in same_dynamics(scenario):
         source = rows.get(_cell_key(env, other, learner, args))
         if source is not None and other != scenario:
@@ -281,12 +279,12 @@ def _fmt(mean: float, se: float, bold: bool) -> str:
 def table_stage(args) -> dict:
     """Write and print the Table 7.3-style table; return the per-cell summary."""
     from offline.experiment import TABLE_LEARNERS
-    from offline.sweep import setting_fields
+    from offline.sweep import result_rows, setting_fields
 
     path = args.out / "results.jsonl"
     if not path.exists():
         raise SystemExit(f"no results at {path}: run --stage train first")
-    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    rows = result_rows(path)
     # The cells of ``--envs`` with the key ``args`` gives them: run budget (steps, seeds,
     # network, data scale, terminals, evaluation episodes), learner setting, expert-set size and
     # control rate (RL-sample keys do not depend on the expert set).
@@ -317,8 +315,8 @@ def table_stage(args) -> dict:
             if not here:
                 continue
             # Bold: within 90 % of the best non-Oracle score (none bold in an Oracle-only row).
-            others = [v[0] for k, v in here.items() if k != "Oracle"]
-            thresh = max(others) - 0.1 * abs(max(others)) if others else math.inf
+            best = max((v[0] for k, v in here.items() if k != "Oracle"), default=None)
+            thresh = math.inf if best is None else best - 0.1 * abs(best)
             entries = []
             for lrn in TABLE_LEARNERS:
                 if lrn not in here:

@@ -439,11 +439,10 @@ def load_cells(args) -> dict[tuple[str, str, str], dict]:
     path = args.out / "results.jsonl"
     if not path.exists():
         raise SystemExit(f"no results at {path}: run --stage train first")
+    from offline.sweep import result_rows
+
     cells = {}
-    for line in path.read_text().splitlines():
-        if not line.strip():
-            continue
-        r = json.loads(line)
+    for r in result_rows(path):
         if r["cell"] != _cell_key(r["dataset"], r["learner"], r["reward"], args):
             continue
         s = np.asarray(r["normalized_score"], np.float64)
