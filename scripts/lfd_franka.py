@@ -45,15 +45,18 @@ nominal demonstration of each control point):
 * **obstacle**: the same starts are run again with a vertical cylinder (radius
   ``--obstacle-radius``, infinite height) placed *across* the held-out demonstration's path: from
   the midpoint of its centre path, moved perpendicular to the path in the horizontal plane by the
-  smallest offset at which the demonstrated motion (all 48 collision spheres) comes no closer
-  than ``--obstacle-clearance`` to it — negative by default (−2 cm: replaying the demonstration
-  would cut 2 cm into the cylinder, so the policy must deviate from it) — while the
-  demonstration's start and goal configurations keep ``--free-margin`` (5 cm; the task stays
-  solvable). It is avoided through the hand-designed collision RMP (§5.2.3). **Collisions are
-  counted explicitly**: the exact smallest distance between every collision sphere and the
-  cylinder along every rollout; a rollout whose minimum is ≤ 0 collides. Success then also
-  requires no collision. ``colliding_rollouts`` / ``obstacle_rollouts`` and the smallest
-  clearance are reported per strategy, with the demonstration's own clearance per fold.
+  smallest offset at which the demonstrated motion (all 48 collision spheres) comes no closer than
+  ``--obstacle-clearance`` to it — negative by default (−2 cm: replaying the demonstration would cut
+  2 cm into the cylinder, so the policy must deviate from it) — while the demonstration's start and
+  goal configurations keep ``--free-margin`` (5 cm; the task stays solvable). A new start closer
+  than ``--free-margin`` to the cylinder is replaced, for the obstacle rollouts only, by a fresh
+  draw from the same distribution that is not (a rollout that begins in the cylinder cannot avoid
+  it; before session 18 such starts were kept, and 4 of 600 drawer starts of a 10-seed run began
+  inside it). It is avoided through the hand-designed collision RMP (§5.2.3). **Collisions are
+  counted explicitly**: the exact smallest distance between every collision sphere and the cylinder
+  along every rollout; a rollout whose minimum is ≤ 0 collides. Success then also requires no
+  collision. ``colliding_rollouts`` / ``obstacle_rollouts`` and the smallest clearance are reported
+  per strategy, with the demonstration's own clearance per fold.
 
 Every rollout runs the execution policy of :mod:`agents.lfd_strategies` (learned leaves, the
 default straight-line leaves of §5.3.2, and the execution-time leaves of
@@ -144,7 +147,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="smallest distance between the demonstrated motion and the cylinder "
                         "(m); negative: the demonstration would penetrate it by that much")
     p.add_argument("--free-margin", type=float, default=0.05,
-                   help="clearance kept at the demonstration's start and goal (m)")
+                   help="clearance kept at the demonstration's start and goal, and at every "
+                        "start of an obstacle rollout (m)")
     p.add_argument("--corridor-tolerance", type=float, default=0.05,
                    help="task success: largest excursion from the training demonstrations' "
                         "paths beyond the start's distance (m)")
@@ -152,6 +156,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="weight of the execution-time posture leaf (0: off)")
     p.add_argument("--substeps", type=int, default=1, help="Euler sub-steps per control step")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--matmul-precision", default="highest", choices=("highest", "default"),
+                   help="float32 matrix products: highest (default) or the backend's default "
+                        "(TF32 on Ampere/Hopper GPUs)")
     p.add_argument("--out", default="results/lfd_franka")
     p.add_argument("--figures", default="docs/figures")
     p.add_argument("--quick", action="store_true",
@@ -255,12 +262,34 @@ def perturbed_starts(key: jax.Array, q0: np.ndarray, num: int, std: float) -> np
     return np.clip(q0[None] + noise, lo, hi).astype(np.float32)
 
 
+def clear_starts(key: jax.Array, q0: np.ndarray, starts: np.ndarray, std: float,
+                 center: np.ndarray, radius: float, margin: float,
+                 max_rounds: int = 100) -> np.ndarray:
+    """``starts (R, 7)`` with every one closer than ``margin`` to the cylinder at ``center``
+    replaced by a fresh :func:`perturbed_starts` draw around ``q0`` that keeps ``margin`` (rounds
+    of ``R`` candidates from ``key``; raises if ``max_rounds`` rounds do not suffice)."""
+    out = np.array(starts, copy=True)
+    bad = np.flatnonzero(clearance(out, center[:2], radius) < margin)
+    for r in range(max_rounds):
+        if bad.size == 0:
+            return out
+        cand = perturbed_starts(jax.random.fold_in(key, r), q0, len(out), std)
+        cand = cand[clearance(cand, center[:2], radius) >= margin][:bad.size]
+        out[bad[:len(cand)]] = cand
+        bad = bad[len(cand):]
+    if bad.size:
+        raise RuntimeError(f"no start {margin} m clear of the cylinder at {center[:2]} in "
+                           f"{max_rounds} rounds of {len(out)} draws around the held-out start")
+    return out
+
+
 # ---------------------------------------------------------------------------------------------
 # One task × strategy
 # ---------------------------------------------------------------------------------------------
 
 
-def run_strategy(args, cfg, stacked, demos, folds, starts, obstacle_centers, horizon, log):
+def run_strategy(args, cfg, stacked, demos, folds, starts, obstacle_starts, obstacle_centers,
+                 horizon, log):
     """Train all folds, roll out, evaluate; returns the metrics dict and the reproductions."""
     N = stacked.mask.shape[0]
     F = len(folds)
@@ -281,11 +310,13 @@ def run_strategy(args, cfg, stacked, demos, folds, starts, obstacle_centers, hor
         + (f", metric {np.asarray(result.metric_losses[:, -1]).mean():.4g}"
            if cfg.metric_iterations else ""))
 
-    # Rollouts: per fold, [held-out start, starts..., starts... with the obstacle, starts...
-    # without the posture leaf (ablation)].
+    # Rollouts: per fold, [held-out start, starts..., obstacle starts (the starts, those within
+    # --free-margin of the cylinder redrawn) with the obstacle, starts... without the posture
+    # leaf (ablation)].
     R = starts.shape[1]
     fold_idx = np.asarray(folds)
-    q0 = np.concatenate([stacked.q[fold_idx, 0][:, None], starts, starts, starts], axis=1)
+    q0 = np.concatenate([stacked.q[fold_idx, 0][:, None], starts, obstacle_starts, starts],
+                        axis=1)
     active = np.concatenate([np.zeros((F, 1 + R)), np.ones((F, R)), np.zeros((F, R))], axis=1)
     w_post = np.where(np.arange(1 + 3 * R) < 1 + 2 * R, args.posture_weight, 0.0)
     goals = np.asarray(stacked.goals)[fold_idx]
@@ -482,7 +513,16 @@ def plot_errors(path, metrics):
 
 
 def main(argv: list[str] | None = None) -> dict:
+    """Run the comparison of the module docstring; returns ``{"settings", "tasks"}`` as written
+    to ``metrics.json``. Float32 matrix products run at ``--matmul-precision`` (``highest`` by
+    default: on Ampere/Hopper GPUs the backend default is TF32, and with it the same seed's
+    policies behaved differently on a GPU than on a CPU — DESIGN §8)."""
     args = parse_args(argv)
+    with jax.default_matmul_precision(args.matmul_precision):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> dict:
     os.makedirs(args.out, exist_ok=True)
     os.makedirs(args.figures, exist_ok=True)
     t_start = time.time()
@@ -504,6 +544,10 @@ def main(argv: list[str] | None = None) -> dict:
         centers = np.stack([place_obstacle(demos[f], args.obstacle_radius,
                                            args.obstacle_clearance, args.free_margin)
                             for f in folds])
+        obstacle_starts = np.stack([
+            clear_starts(jax.random.fold_in(key, len(demos) + f), demos[f].q[0], starts[i],
+                         args.perturbation, centers[i], args.obstacle_radius, args.free_margin)
+            for i, f in enumerate(folds)])
         longest = max(d.length for d in demos)
         horizon = math.ceil(args.horizon_factor * (longest - 1) * args.dt / args.exec_dt)
         log(f"{task}: {N} demonstrations, lengths {[d.length for d in demos]} at dt={args.dt}; "
@@ -514,7 +558,7 @@ def main(argv: list[str] | None = None) -> dict:
             cfg = strategy_config(args, s)
             log(f"  {s}")
             metrics[task][s], reproductions[s] = run_strategy(
-                args, cfg, stacked, demos, folds, starts, centers, horizon, log)
+                args, cfg, stacked, demos, folds, starts, obstacle_starts, centers, horizon, log)
             m = metrics[task][s]
             rows.append({"task": task, "strategy": s,
                          "mean_position_error_cm": round(m["mean_position_error"] * 100, 3),
