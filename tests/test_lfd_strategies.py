@@ -368,6 +368,22 @@ def test_script_quick_runs_end_to_end(tmp_path):
     assert out["tasks"]["drawer_closing"]["joint"]["mean_position_error"] == \
         joint["mean_position_error"]
 
+    # A second seed and the paired summary over both (scripts/lfd_franka_seeds.py).
+    from scripts.lfd_franka_seeds import main as summarise_seeds
+
+    other = tmp_path / "seed1"
+    main(["--quick", "--seed", "1", "--out", str(other), "--figures", str(other)])
+    j1 = json.loads((other / "metrics.json").read_text())["tasks"]["drawer_closing"]["joint"]
+    summary = summarise_seeds([str(tmp_path), str(other), "--out", str(tmp_path / "sum")])
+    e = summary["tasks"]["drawer_closing"]["strategies"]["joint"]
+    values = [joint["mean_position_error"], j1["mean_position_error"]]
+    assert summary["seeds"] == [0, 1] and e["mean_position_error"]["per_seed"] == values
+    np.testing.assert_allclose(e["mean_position_error"]["mean"], np.mean(values))
+    assert e["pooled_success"] == [sum(f["success"] for r in (joint, j1) for f in r["folds"]), 4]
+    assert e["pooled_colliding"][1] == 4
+    for name in ("summary.json", "summary.md", "seeds.png"):
+        assert (tmp_path / "sum" / name).stat().st_size > 100
+
 
 def test_corridor_excursion_by_hand():
     """A rollout that starts 3 cm off the demonstrated corridor and then runs along it has
@@ -383,3 +399,80 @@ def test_corridor_excursion_by_hand():
     bump[10, 2] += np.array([0.0, 0.0, 0.10])                               # one point lifted
     np.testing.assert_allclose(corridor_excursions(np.stack([along, bump]), [demo]),
                                [0.0, 0.10], atol=1e-12)
+
+
+def test_obstacle_starts_inside_the_margin_are_redrawn():
+    """A cylinder on the hand of start 0 puts that start inside it: only that start is replaced,
+    by one that keeps the margin; an impossible margin is refused."""
+    from scripts.lfd_franka import clear_starts, clearance, perturbed_starts
+
+    demo = fd.load_task("drawer_closing", dt=0.5)[0]
+    starts = perturbed_starts(jax.random.PRNGKey(3), demo.q[0], 6, 0.1)
+    hand = np.asarray(fd.hand_points(jnp.asarray(starts[0])))[0]
+    center = np.array([hand[0], hand[1], 0.0])
+    before = clearance(starts, center[:2], 0.05)
+    assert before[0] < 0
+    out = clear_starts(jax.random.PRNGKey(4), demo.q[0], starts, 0.1, center, 0.05, 0.02)
+    after = clearance(out, center[:2], 0.05)
+    assert np.all(after >= 0.02)
+    keep = before >= 0.02
+    np.testing.assert_array_equal(out[keep], starts[keep])
+    assert not np.allclose(out[0], starts[0])
+    with pytest.raises(RuntimeError, match="no start"):
+        clear_starts(jax.random.PRNGKey(4), demo.q[0], starts, 0.1, center, 0.05, 5.0,
+                     max_rounds=3)
+
+
+def _run_dir(path, seed, errors, successes, **settings):
+    """A metrics.json of two strategies on one task with the given per-strategy values."""
+    folds = lambda n: [{"success": n, "task_success": n, "corridor_excursions": [0.0] * 10}]  # noqa: E731
+    tasks = {"door_reaching": {s: {
+        "mean_position_error": errors[s], "success_rate": successes[s] / 10,
+        "task_success_rate": successes[s] / 10, "success_rate_obstacle": 1.0,
+        "success_rate_no_posture": 1.0, "colliding_rollouts": 0, "obstacle_rollouts": 10,
+        "min_clearance_obstacle": 0.01, "joint_limit_violations": 0,
+        "folds": folds(successes[s])} for s in errors}}
+    path.mkdir()
+    (path / "metrics.json").write_text(json.dumps(
+        {"settings": {"seed": seed, "preset": "cpu", **settings}, "tasks": tasks}))
+    return str(path)
+
+
+def test_seed_summary_pairs_by_seed_by_hand(tmp_path):
+    """Errors joint 0.1/0.2 against independent 0.3/0.3: difference −0.2/−0.1, mean −0.15,
+    standard error std([−0.2, −0.1], ddof=1)/√2 = 0.05, joint better in both seeds; successes
+    9/6 against 8/8 are pooled to 15/20 and 16/20, joint better in one seed."""
+    from scripts.lfd_franka_seeds import load_runs, summarise
+
+    a = _run_dir(tmp_path / "a", 1, {"joint": 0.1, "independent": 0.3}, {"joint": 9,
+                                                                          "independent": 8})
+    b = _run_dir(tmp_path / "b", 2, {"joint": 0.2, "independent": 0.3}, {"joint": 6,
+                                                                          "independent": 8})
+    out = summarise(load_runs([a, b]))["tasks"]["door_reaching"]
+    c = out["comparisons"]["independent"]
+    np.testing.assert_allclose(c["mean_position_error"]["mean_difference"], -0.15)
+    np.testing.assert_allclose(c["mean_position_error"]["se"], 0.05)
+    assert c["mean_position_error"]["reference_better"] == 2
+    assert c["success_rate"]["reference_better"] == 1
+    assert out["strategies"]["joint"]["pooled_success"] == [15, 20]
+    assert out["strategies"]["independent"]["pooled_success"] == [16, 20]
+
+
+def test_seed_summary_refuses_runs_that_differ_in_more_than_the_seed(tmp_path):
+    from scripts.lfd_franka_seeds import load_runs, summarise
+
+    e, n = {"joint": 0.1, "independent": 0.2}, {"joint": 5, "independent": 5}
+    a = _run_dir(tmp_path / "a", 1, e, n, perturbation=0.1)
+    b = _run_dir(tmp_path / "b", 2, e, n, perturbation=0.3)
+    same = _run_dir(tmp_path / "c", 1, e, n, perturbation=0.1)
+    with pytest.raises(ValueError, match="setting 'perturbation'"):
+        load_runs([a, b])
+    with pytest.raises(ValueError, match="its own seed"):
+        load_runs([a, same])
+    with pytest.raises(ValueError, match="at least 2 runs"):
+        load_runs([a])
+    with pytest.raises(FileNotFoundError, match=r"no metrics\.json"):
+        load_runs([a, str(tmp_path)])
+    ok = _run_dir(tmp_path / "d", 2, e, n, perturbation=0.1)
+    with pytest.raises(ValueError, match="reference: strategy 'cspace'"):
+        summarise(load_runs([a, ok]), reference="cspace")
