@@ -359,6 +359,11 @@ def test_script_quick_runs_end_to_end(tmp_path):
     assert joint["obstacle_rollouts"] == 2 and 0 <= joint["colliding_rollouts"] <= 2
     assert (joint["colliding_rollouts"] == 0) == (joint["min_clearance_obstacle"] > 0)
     assert joint["joint_limit_violations"] == 0
+    for fold in joint["folds"]:   # restart kept: the first within the success radius, else best
+        errs, kept = np.asarray(fold["restart_errors"]), fold["restart"]
+        assert errs.shape == (3,)
+        within = errs <= 0.02
+        assert kept == (int(np.argmax(within)) if within.any() else int(np.argmin(errs)))
     for fold in joint["folds"]:   # the corridor test only removes successes; excursions >= 0
         assert 0 <= fold["task_success"] <= fold["success"]
         assert len(fold["corridor_excursions"]) == 1 and fold["corridor_excursions"][0] >= 0
