@@ -89,8 +89,9 @@ counts, training time and final losses; the settings) and ``table.csv`` to ``--o
 figures ``lfd_franka_<task>.png`` (demonstrated vs reproduced control-point triangles and
 centre paths, 3-D, as Figs 5.1/5.4) and ``lfd_franka_errors.png`` (box plots of the errors, the
 success rates and the corridor excursions per strategy, as Fig 5.7) to ``--figures``. The
-default (CPU preset, 2 tasks × 5 strategies × 6 folds) takes 5–8 minutes on 2 CPU cores
-(5.1 min in session 8, 7.8 at load 1–2; ``--strategies two_step`` alone takes about 1 minute);
+default (CPU preset, 2 tasks × 5 strategies × 6 folds × 3 restarts, 4 sub-steps) takes about
+13 minutes on 2 CPU cores (757 s in session 18; 5–8 minutes with ``--restarts 1 --substeps
+1``; ``--strategies two_step`` alone takes about 1 minute);
 ``--preset thesis`` uses the full model sizes and iteration counts (hours on a CPU; 387 s for
 2 tasks × 4 strategies as 8 processes side by side on one H100, and worse results than the CPU
 preset: BENCHMARKS.md); ``--preset reference`` adds the LASA reference code's gradient clip 0.1
