@@ -300,6 +300,13 @@ def clear_starts(key: jax.Array, q0: np.ndarray, starts: np.ndarray, std: float,
     return out
 
 
+def kept_restarts(misses: np.ndarray, radius: float) -> np.ndarray:
+    """Per fold, the restart kept from ``misses (F, K)`` (each model's largest distance to the
+    goals from its fold's training starts): the first within ``radius``, else the smallest."""
+    ok = misses <= radius
+    return np.where(ok.any(axis=1), np.argmax(ok, axis=1), np.argmin(misses, axis=1))
+
+
 # ---------------------------------------------------------------------------------------------
 # One task × strategy
 # ---------------------------------------------------------------------------------------------
@@ -359,8 +366,7 @@ def run_strategy(args, cfg, stacked, demos, folds, starts, obstacle_starts, obst
         miss = np.linalg.norm(hand - np.repeat(np.asarray(stacked.goals)[train_idx], K, axis=0),
                               axis=-1)
         restart_errors = np.nan_to_num(miss.max(axis=(1, 2)), nan=np.inf).reshape(F, K)
-    ok = restart_errors <= args.success_radius
-    choice = np.where(ok.any(axis=1), np.argmax(ok, axis=1), np.argmin(restart_errors, axis=1))
+    choice = kept_restarts(restart_errors, args.success_radius)
     pick = lambda a: a.reshape(F, K, *a.shape[1:])[np.arange(F), choice]  # noqa: E731
     result = jax.tree.map(pick, result)
     if nominal is not None:

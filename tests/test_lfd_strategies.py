@@ -349,7 +349,7 @@ def test_train_rejects_wrong_sample_shapes(trained):
 
 
 def test_script_quick_runs_end_to_end(tmp_path):
-    from scripts.lfd_franka import main
+    from scripts.lfd_franka import kept_restarts, main
 
     out = main(["--quick", "--out", str(tmp_path), "--figures", str(tmp_path)])
     m = json.loads((tmp_path / "metrics.json").read_text())
@@ -359,11 +359,8 @@ def test_script_quick_runs_end_to_end(tmp_path):
     assert joint["obstacle_rollouts"] == 2 and 0 <= joint["colliding_rollouts"] <= 2
     assert (joint["colliding_rollouts"] == 0) == (joint["min_clearance_obstacle"] > 0)
     assert joint["joint_limit_violations"] == 0
-    for fold in joint["folds"]:   # restart kept: the first within the success radius, else best
-        errs, kept = np.asarray(fold["restart_errors"]), fold["restart"]
-        assert errs.shape == (3,)
-        within = errs <= 0.02
-        assert kept == (int(np.argmax(within)) if within.any() else int(np.argmin(errs)))
+    kept = kept_restarts(np.array([f["restart_errors"] for f in joint["folds"]]), 0.02)
+    assert [f["restart"] for f in joint["folds"]] == kept.tolist()
     for fold in joint["folds"]:   # the corridor test only removes successes; excursions >= 0
         assert 0 <= fold["task_success"] <= fold["success"]
         assert len(fold["corridor_excursions"]) == 1 and fold["corridor_excursions"][0] >= 0
@@ -404,6 +401,16 @@ def test_corridor_excursion_by_hand():
     bump[10, 2] += np.array([0.0, 0.0, 0.10])                               # one point lifted
     np.testing.assert_allclose(corridor_excursions(np.stack([along, bump]), [demo]),
                                [0.0, 0.10], atol=1e-12)
+
+
+def test_kept_restart_is_the_first_within_the_radius_else_the_closest():
+    """Fold 0: restarts 1 and 2 are within 2 cm, restart 1 is kept although 2 is closer; fold 1:
+    none is within, the closest (restart 2) is kept; fold 2: restart 0 passes and is kept."""
+    from scripts.lfd_franka import kept_restarts
+
+    misses = np.array([[0.30, 0.015, 0.001], [0.30, 0.50, 0.25], [0.01, 0.001, 0.002]])
+    np.testing.assert_array_equal(kept_restarts(misses, 0.02), [1, 2, 0])
+    np.testing.assert_array_equal(kept_restarts(misses[:, :1], 0.02), [0, 0, 0])
 
 
 def test_obstacle_starts_inside_the_margin_are_redrawn():
