@@ -170,8 +170,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="Euler sub-steps per control step (module docstring)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--restarts", type=int, default=3,
-                   help="models trained per fold; the one that ends closest to the goals from "
-                        "the fold's own training starts is kept (1: no selection)")
+                   help="models trained per fold; the first that reaches the goals from the "
+                        "fold's own training starts is kept, else the closest (1: no selection)")
     p.add_argument("--matmul-precision", default="highest", choices=("highest", "default"),
                    help="float32 matrix products: highest (default) or the backend's default "
                         "(TF32 on Ampere/Hopper GPUs)")
@@ -349,23 +349,23 @@ def run_strategy(args, cfg, stacked, demos, folds, starts, obstacle_starts, obst
         return L.rollout(cfg, res, q0_, g, qg, horizon, args.exec_dt, obs, hand_cfg, params,
                          qp, wp)[0]
 
-    # Restarts: keep, per fold, the model whose rollouts from its own training demonstrations'
-    # starts (to their own goals; posture leaf on, no obstacle) end closest to the goals.
+    # Restarts (module docstring): every model is rolled out from its fold's training starts
+    # to their own goals (posture leaf on, no obstacle); kept_restarts picks one per fold.
     restart_errors = np.zeros((F, K))
     if K > 1:
         train_idx = np.array([[j for j in range(N) if j != f] for f in folds])     # (F, N-1)
-        rep = lambda a: jnp.asarray(np.repeat(a, K, axis=0))  # noqa: E731
+        rep = lambda a: np.repeat(np.asarray(a)[train_idx], K, axis=0)  # noqa: E731
+        train_goals = rep(stacked.goals)                                       # (F·K, N-1, 3, 3)
         check = jax.jit(jax.vmap(jax.vmap(one, in_axes=(None, 0, 0, 0, None, None, None, None)),
                                  in_axes=(0, 0, 0, 0, 0, None, None, None)))
-        ends = check(result, rep(np.asarray(stacked.q)[train_idx, 0]),
-                     rep(np.asarray(stacked.goals)[train_idx]),
-                     rep(np.asarray(stacked.q_goal)[train_idx]), rep(q_posture),
+        ends = check(result, jnp.asarray(rep(stacked.q)[:, :, 0]), jnp.asarray(train_goals),
+                     jnp.asarray(rep(stacked.q_goal)),
+                     jnp.asarray(np.repeat(q_posture, K, axis=0)),
                      jnp.zeros((3,), jnp.float32), jnp.float32(0.0),
                      jnp.float32(args.posture_weight))[:, :, -1]                # (F·K, N-1, 7)
-        hand = np.asarray(_hand(ends.reshape(-1, 7))).reshape(F * K, N - 1, 3, 3)
-        miss = np.linalg.norm(hand - np.repeat(np.asarray(stacked.goals)[train_idx], K, axis=0),
-                              axis=-1)
-        restart_errors = np.nan_to_num(miss.max(axis=(1, 2)), nan=np.inf).reshape(F, K)
+        hand = np.asarray(_hand(ends.reshape(-1, 7))).reshape(train_goals.shape)
+        miss = np.linalg.norm(hand - train_goals, axis=-1).max(axis=(1, 2))
+        restart_errors = np.nan_to_num(miss, nan=np.inf).reshape(F, K)
     choice = kept_restarts(restart_errors, args.success_radius)
     pick = lambda a: a.reshape(F, K, *a.shape[1:])[np.arange(F), choice]  # noqa: E731
     result = jax.tree.map(pick, result)
