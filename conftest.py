@@ -6,7 +6,7 @@ GPU host.
 
 The suite is dominated by compilation (hundreds of small programs, each run briefly), so it also
 turns XLA's backend (LLVM) optimisation off: compiles get about twice as fast, the compiled code
-somewhat slower; measured on 2 cores, ``tests/test_eval.py`` + ``tests/test_agent_policies.py``
+somewhat slower; measured on 2 cores, ``tests/envs/test_eval.py`` + ``tests/agents/test_agent_policies.py``
 went from 184 s to 109 s. The same HLO is compiled; results can differ only by rounding.
 """
 

@@ -1,1 +1,1 @@
-"""Learners: PPO (``agents.ppo``) and, later, learning from demonstrations."""
+"""Learners: PPO (``agents.ppo.train``) and, later, learning from demonstrations."""

@@ -41,14 +41,22 @@ BRAX_NAMES: dict[str, str] = {
 }
 
 
-def make(name: str, **kwargs) -> brax.envs.Env:
-    """Build the environment called ``name`` (see the module docstring)."""
+def make(name: str, *, rmp_in_env: bool = False, **kwargs) -> brax.envs.Env:
+    """Build the environment called ``name`` (see the module docstring).
+
+    With ``rmp_in_env=True`` the environment is wrapped in :class:`RMPInEnv` (RMP² inside the
+    environment, thesis §6.1.1: the action is a residual RMP), observing ``"residual_rmp"``
+    unless ``observation`` is given.
+    """
     if name in BRAX_NAMES:
         name = BRAX_NAMES[name]
     if name not in ENVIRONMENTS:
         raise ValueError(
             f"unknown environment name={name!r}; valid names are {sorted(ENVIRONMENTS)}"
         )
+    if rmp_in_env:
+        kwargs.setdefault("observation", "residual_rmp")
+        return RMPInEnv(ENVIRONMENTS[name](**kwargs))
     return ENVIRONMENTS[name](**kwargs)
 
 

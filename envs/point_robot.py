@@ -25,7 +25,7 @@ from brax.envs.base import Env, State
 from envs import samplers
 from envs.checks import check_action
 from mjxrmp.geometry import Obstacles
-from mjxrmp.leaves import safe_norm
+from mjxrmp.leaves.hand_designed import safe_norm
 
 
 class PointState(NamedTuple):

@@ -52,7 +52,7 @@ import mjxrmp  # noqa: F401  (sets the XLA:CPU flag before JAX initialises)
 from envs import samplers
 from envs.checks import check_action
 from mjxrmp.geometry import Obstacles
-from mjxrmp.leaves import safe_norm
+from mjxrmp.leaves.hand_designed import safe_norm
 from mjxrmp.robots import Robot, get, mjcf
 
 OBSTACLE_SAMPLERS = ("thesis", "original")

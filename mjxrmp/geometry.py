@@ -7,7 +7,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from mjxrmp.leaves import safe_norm, smooth_norm
+from mjxrmp.leaves.hand_designed import safe_norm, smooth_norm
 
 #: Obstacle shapes understood by :func:`point_obstacle_distances`.
 OBSTACLE_SHAPES = ("sphere", "cylinder")

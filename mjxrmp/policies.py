@@ -18,9 +18,10 @@ from typing import Literal
 import jax
 import jax.numpy as jnp
 
-from mjxrmp import rmp2
+from mjxrmp.core import rmp2
+from mjxrmp.core.rmp import RMP
 from mjxrmp.geometry import OBSTACLE_SHAPES, Obstacles, point_obstacle_distances
-from mjxrmp.leaves import (
+from mjxrmp.leaves.hand_designed import (
     CollisionParams,
     CSpaceTargetParams,
     DampingParams,
@@ -34,7 +35,6 @@ from mjxrmp.leaves import (
     target_rmp,
     velocity_cap_rmp,
 )
-from mjxrmp.rmp import RMP
 from mjxrmp.robots import Robot, get
 
 Variant = Literal["hand_designed", "residual_base", "residual_rmp"]

@@ -7,7 +7,7 @@ For each robot's hand-designed RMP² policy (``mjxrmp.policies.default_config``)
   enough times to last ``--min-repeat-s`` and blocks once at the end);
 * **single** — single-state latency of ``jax.jit(policy)`` on unbatched inputs: the median over
   ``--latency-calls`` calls, each blocked on its own (dispatch included);
-* the same for the naive baseline (:func:`mjxrmp.naive.acceleration_naive`) at ``--naive-batches``
+* the same for the naive baseline (:func:`mjxrmp.core.naive.acceleration_naive`) at ``--naive-batches``
   and the ratio RMP²/naive at the largest batch both were run at (4096 by default).
 
 "compile" is the wall time of the first call of each compiled function (trace + compile + run).
@@ -52,7 +52,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxrmp import naive, policies
+from mjxrmp import policies
+from mjxrmp.core import naive
 from mjxrmp.geometry import make_obstacles
 from mjxrmp.robots import get
 
@@ -462,8 +463,8 @@ def measure_ppo(env_name: str, policy: str, devices: int, iterations: int, seeds
     """PPO training throughput: environment steps/s of a compiled chunk of ``iterations``
     iterations for ``seeds`` vmapped seeds, the environment batch sharded over ``devices``
     devices (after a warm-up chunk); compile time; on one device also the per-iteration split
-    (:func:`agents.training.profile_iteration`)."""
-    from agents.training import RunSpec, build, make_mesh, preset, profile_iteration, seed_keys
+    (:func:`agents.run.training.profile_iteration`)."""
+    from agents.run.training import RunSpec, build, make_mesh, preset, profile_iteration, seed_keys
 
     overrides = {} if num_envs is None else {"num_envs": num_envs}
     spec = RunSpec(env=env_name, policy=policy, seeds=tuple(range(seeds)),

@@ -20,7 +20,7 @@ For each learner (``atac``, ``pspi``, ``mahalo``, ``bc``, ``iql``, ``cql``) at t
   limit still leaves its rate.
 
 The data are a ``mixed`` dataset of ``three_link/env3`` collected in the compiled graph
-(:func:`offline.collect.collect_recipe`; its size does not change the cost of a step) and, for
+(:func:`offline.data.collect.collect_recipe`; its size does not change the cost of a step) and, for
 MAHALO, the ILfO scenario built from it and an ``expert`` dataset. Writes JSON (default
 ``results/bench_offline_<device>.json``) and prints a table. :func:`measure` is what
 ``scripts/bench.py --offline`` calls.
@@ -50,7 +50,7 @@ LEARNERS = ("atac", "pspi", "mahalo", "bc", "iql", "cql")
 
 
 def _datasets(scale: int, seed: int):
-    from offline import collect, scenarios
+    from offline.data import collect, scenarios
 
     mixed = collect.collect_recipe("three_link/env3", "mixed", scale, seed=seed)
     expert = collect.collect_recipe("three_link/env3", "expert", scale, seed=seed)
@@ -59,7 +59,7 @@ def _datasets(scale: int, seed: int):
 
 def _trainer(name: str, mixed, scenario, num_steps: int):
     """The learner ``name`` at its default (thesis) sizes with ``num_steps`` gradient steps."""
-    from offline import atac, bc, cql, iql, mahalo
+    from offline.learners import atac, bc, cql, iql, mahalo
 
     warm = min(100_000, num_steps // 10)
     if name in ("atac", "pspi"):
@@ -114,9 +114,9 @@ def measure_full(learner: str, num_steps: int, num_seeds: int, seed: int = 0, da
     """Wall time of a whole run of ``num_steps`` steps for ``num_seeds`` seeds vmapped,
     compilation included (reported apart too): one ``jax.jit(jax.vmap(train))`` program
     (``chunk = 0``), or ``chunk``-step compiled calls of ``run`` after a compiled ``init``
-    (:func:`offline.experiment.train_chunked`'s way of running), with ``on_chunk(partial
+    (:func:`offline.experiment.run.train_chunked`'s way of running), with ``on_chunk(partial
     result)`` after each — so a run cut short still leaves its progress and rate."""
-    from offline.experiment import train_chunked
+    from offline.experiment.run import train_chunked
 
     mixed, _, scenario = data if data is not None else _datasets(scale, seed)
     trainer = _trainer(learner, mixed, scenario, num_steps)

@@ -8,13 +8,13 @@
 
 ``--episodes`` is the recipe's *scale*: episodes **per source** (``mixed`` has 4 sources
 without a PPO run, 6 plus the medium-replay checkpoints with one; see
-:mod:`offline.collect` for the recipe table). Without ``--ppo-run`` the recipes ``medium``,
+:mod:`offline.data.collect` for the recipe table). Without ``--ppo-run`` the recipes ``medium``,
 ``medium-replay`` and ``medium-expert`` contain no PPO data — the expert with Gaussian action
 noise stands in — and ``mixed`` lacks the PPO sources: the script prints a warning and the
 dataset's metadata records it (``metadata["fallback"]``).
 
 Prints progress, the sources, per-source and overall statistics (episodes, transitions, mean
-return, terminals vs timeouts, safe %, success %) and saves with :func:`offline.data.save`.
+return, terminals vs timeouts, safe %, success %) and saves with :func:`offline.data.dataset.save`.
 """
 
 from __future__ import annotations
@@ -66,8 +66,8 @@ def main(argv=None) -> dict:
     args = _parser().parse_args(argv)
 
     import envs
-    from offline import collect as oc
-    from offline import data as odata
+    from offline.data import collect as oc
+    from offline.data import dataset as odata
 
     def fail(msg: str) -> None:
         print(f"error: {msg}", file=sys.stderr)

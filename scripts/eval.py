@@ -7,7 +7,7 @@
         [--episodes 256] [--eval-seed 0] [--horizon H] [--json out.json] [--gif out.gif]
 
 Every checkpoint (``--steps``, default ``latest``, of every run directory written by
-``scripts/train.py``) is restored with :func:`agents.runs.load_run`; each of its training seeds
+``scripts/train.py``) is restored with :func:`agents.run.loading.load_run`; each of its training seeds
 acts with its deterministic policy — the Gaussian mean, clipped by the environment — for
 ``--episodes`` episodes of ``--horizon`` control steps (default: the environment's 600) on each
 setup (default: the run's own environment), with :func:`envs.evaluate.make_rollout` (episodes
@@ -55,7 +55,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from agents.runs import (  # noqa: E402
+from agents.run.loading import (  # noqa: E402
     LoadedRun,
     checkpoint_steps,
     env_policy,
@@ -169,7 +169,7 @@ class Sweep:
 
 
 def stack_params(checkpoints: Sequence[LoadedRun]):
-    """``(stack, members)``: every checkpoint's per-seed :class:`agents.runs.PolicyParams`
+    """``(stack, members)``: every checkpoint's per-seed :class:`agents.run.loading.PolicyParams`
     concatenated along the leading axis, and ``(checkpoint index, seed index)`` per row."""
     stack = jax.tree.map(lambda *xs: jnp.concatenate(xs),
                          *[policy_params(c) for c in checkpoints])
@@ -408,7 +408,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.horizon is not None and args.horizon < 1:
         p.error(f"--horizon must be >= 1, got {args.horizon}")
 
-    from agents.checkpoint import IncompatibleCheckpointError
+    from agents.run.checkpoint import IncompatibleCheckpointError
 
     try:
         checkpoints = [load_run(r, step) for r in args.runs

@@ -1,4 +1,4 @@
-"""Export a policy's deterministic mean with :func:`agents.export.export_policy`.
+"""Export a policy's deterministic mean with :func:`agents.run.export.export_policy`.
 
 Usage::
 
@@ -10,7 +10,7 @@ Usage::
 
 The first form exports a trained policy: the newest (or ``--step``) checkpoint of a run
 directory written by ``scripts/train.py``, one training seed, with its observation statistics
-baked in (:func:`agents.runs.deterministic_policy`). The second exports a freshly initialised
+baked in (:func:`agents.run.loading.deterministic_policy`). The second exports a freshly initialised
 policy of that kind (``params = module.init(PRNGKey(seed), zeros(obs_size))``). The export
 itself is :func:`export_from_params`. Load the result with ``scripts/load_policy.py``.
 """
@@ -32,8 +32,8 @@ import jax
 import jax.numpy as jnp
 
 import envs
-from agents.export import MATMUL_PRECISIONS, export_policy
-from agents.policies import KINDS, make_env_and_policy
+from agents.ppo.policies import KINDS, make_env_and_policy
+from agents.run.export import MATMUL_PRECISIONS, export_policy
 
 #: Environments the policy classes support: the reaching environments (not ``point2d``).
 EXPORTABLE_ENVS = tuple(sorted(
@@ -76,13 +76,13 @@ def export_from_params(env_name: str, kind: str, params, out: str | os.PathLike,
     """Export the deterministic mean of the ``kind`` policy for ``env_name`` with ``params``.
 
     ``apply_fn(params, obs) -> mean`` defaults to the module's mean on the raw observation;
-    pass :func:`agents.runs.deterministic_policy`'s pair for a checkpoint (observation
+    pass :func:`agents.run.loading.deterministic_policy`'s pair for a checkpoint (observation
     statistics included).
 
     The manifest's ``metadata`` holds ``env``, ``policy``, ``robot``, ``observation_layout``
     (``{name: [start, stop]}``) and ``action`` (what the action means), updated with
     ``metadata`` (e.g. ``iteration``, ``seed``, ``checkpoint``). ``platforms`` and
-    ``matmul_precision`` go to :func:`agents.export.export_policy`. Returns the manifest.
+    ``matmul_precision`` go to :func:`agents.run.export.export_policy`. Returns the manifest.
     """
     env, module = build(env_name, kind)
     base = getattr(env, "unwrapped", env)
@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.checkpoint is not None:
         if args.env is not None or args.policy is not None:
             parser.error("--env/--policy come from the run directory with --checkpoint")
-        from agents.runs import deterministic_policy, load_run
+        from agents.run.loading import deterministic_policy, load_run
 
         try:
             run = load_run(args.checkpoint, args.step)

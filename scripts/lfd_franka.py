@@ -9,10 +9,10 @@ Usage::
     python scripts/lfd_franka.py --quick --out /tmp/x --figures /tmp/x     # seconds (tests)
 
 For each task (door reaching, drawer closing; 6 demonstrations each, thesis §5.2.3) and each
-strategy of :mod:`agents.lfd_strategies` (configuration-space regression, independent per-subtask
+strategy of :mod:`agents.lfd.strategies` (configuration-space regression, independent per-subtask
 learning, joint learning through the velocity-form RMP², single-link learning, and the two-step
 strategy of §5.2 — nominal-demonstration potential, then a metric by eq 5.6 — of
-:mod:`agents.lfd_two_step`, whose potentials are fitted per fold on the host before the folds'
+:mod:`agents.lfd.two_step`, whose potentials are fitted per fold on the host before the folds'
 metrics train in one program; its "flow" loss is eq 4.12's objective, and its folds record the
 nominal demonstration of each control point):
 
@@ -30,7 +30,7 @@ nominal demonstration of each control point):
 * **reproduction error** (§5.3.2, Fig 5.7a): the policy is rolled out from the held-out
   demonstration's start toward its goals for the demonstration's duration; the mean position
   error of each of the three hand control points against the held-out demonstration (time
-  aligned: :func:`mjxrmp.traj_metrics.mean_error`), averaged over the three points.
+  aligned: :func:`mjxrmp.metrics.trajectory.mean_error`), averaged over the three points.
 * **success from new starts** (§5.3.2, Fig 5.7c): ``--num-starts`` configurations drawn around the
   held-out start (``N(0, --perturbation²)`` per joint, clipped inside the joint limits), rolled
   out for ``--horizon-factor`` × the longest demonstration's duration. Success = all three
@@ -44,7 +44,7 @@ nominal demonstration of each control point):
   rollout from a new start must also never stray more than ``--corridor-tolerance`` (5 cm)
   farther from the fold's *training* demonstrations' paths than it started. The distance at time
   ``t`` is the largest over the three control points of the exact distance to the nearest
-  training path of the same point (:func:`mjxrmp.traj_metrics.distance_to_paths`); the
+  training path of the same point (:func:`mjxrmp.metrics.trajectory.distance_to_paths`); the
   *excursion* is its maximum over the rollout minus its value at the start (a held-out human
   demonstration has 0–0.3 cm: the demonstrations fan in from their starts). The excursions
   themselves (threshold-free) are reported and drawn as box plots. This test was added after the
@@ -66,9 +66,9 @@ nominal demonstration of each control point):
   collision. ``colliding_rollouts`` / ``obstacle_rollouts`` and the smallest clearance are reported
   per strategy, with the demonstration's own clearance per fold.
 
-Every rollout runs the execution policy of :mod:`agents.lfd_strategies` (learned leaves, the
+Every rollout runs the execution policy of :mod:`agents.lfd.strategies` (learned leaves, the
 default straight-line leaves of §5.3.2, and the execution-time leaves of
-:class:`agents.lfd_strategies.ExecutionParams`: velocity-form joint limits, a posture leaf of
+:class:`agents.lfd.strategies.ExecutionParams`: velocity-form joint limits, a posture leaf of
 weight ``--posture-weight`` towards the mean final configuration of the fold's *training*
 demonstrations, the collision leaves in their velocity-form lift; the obstacle is switched off
 by its ``active`` flag when absent) with step ``--exec-dt`` and ``--substeps`` Euler sub-steps
@@ -120,11 +120,11 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from agents import lfd_strategies as L  # noqa: E402
-from agents import lfd_two_step  # noqa: E402
-from mjxrmp import traj_metrics  # noqa: E402
+from agents.lfd import strategies as L  # noqa: E402
+from agents.lfd import two_step as lfd_two_step  # noqa: E402
 from mjxrmp.data import franka_demos  # noqa: E402
 from mjxrmp.geometry import make_obstacles, point_obstacle_distances  # noqa: E402
+from mjxrmp.metrics import trajectory as traj_metrics  # noqa: E402
 from mjxrmp.robots import franka  # noqa: E402
 
 LABELS = {"cspace": "C-space", "independent": "Independent", "joint": "Joint (RMP²)",

@@ -7,18 +7,18 @@ Usage::
     python scripts/lfd_lasa.py --all [...]
 
 Every requested shape is trained in **one** compiled program: the shapes' demonstrations
-``(7, 235, 2)`` are stacked along a leading axis and :func:`agents.lfd.make_train`'s training
+``(7, 235, 2)`` are stacked along a leading axis and :func:`agents.lfd.flow_field.make_train`'s training
 step is ``vmap``-ped over it (one ``lax.scan`` per chunk of ``--log-every`` iterations, which is
 when progress is printed). Shape ``k`` of :data:`mjxrmp.data.lasa.LASA_SHAPES` draws its key from
 ``fold_in(PRNGKey(seed), k)``, so a shape's result does not depend on which others are trained
-with it. Model and optimiser are :class:`agents.lfd.LfdConfig`'s defaults (ANCHOR_FACTS §6);
+with it. Model and optimiser are :class:`agents.lfd.flow_field.LfdConfig`'s defaults (ANCHOR_FACTS §6);
 ``--iterations`` overrides the iteration budget (default 5000, early stop after 250 iterations
 without improvement), ``--tiny`` uses :meth:`LfdConfig.tiny` (tests).
 
 ``--time-epochs N`` only times ``N`` full-batch training epochs on Sshape after compilation
 (acceptance 2; prints the median and the load average) and trains nothing.
 
-Rollouts use ``LfdConfig.integrator`` (default ``"latent"``, :func:`agents.lfd.rollout`):
+Rollouts use ``LfdConfig.integrator`` (default ``"latent"``, :func:`agents.lfd.flow_field.rollout`):
 ``y = ψ(x)`` moves straight to the origin without ever overshooting it and ``x = ψ⁻¹(y)`` with
 the flow's exact inverse, so ``‖ψ(x_k)‖`` is non-increasing for every start and step.
 
@@ -27,13 +27,13 @@ Writes to ``--out`` (one folder: ``tar czf lasa.tgz -C DIR .``):
 * ``<shape>.npz`` — ``demos (7, T, 2)``, ``rollouts (7, T, 2)`` (the learned system from each
   demonstration's first sample with the demonstrations' ``dt``, as many samples as the
   demonstration), ``dt`` (scalar), ``losses`` (training loss per iteration);
-* ``metrics.json`` — per shape: :func:`mjxrmp.traj_metrics.all_metrics` between each rollout's
+* ``metrics.json`` — per shape: :func:`mjxrmp.metrics.trajectory.all_metrics` between each rollout's
   first ``T`` samples and its demonstration (RMSE, mean error, DTW and DTW / warping-path
   length, Fréchet, final-point error, swept error area), their means over demonstrations, the
   same for a straight-line baseline (uniform speed from the demonstration's start to the goal
   over its duration), the training summary, the **converged** end points of the same rollouts
   run on to ``--check-steps`` (default ``10·T``; ``auto``: the guaranteed arrival bound of every
-  start, :func:`agents.lfd.arrival_steps`) steps (``final_error_converged``; acceptance:
+  start, :func:`agents.lfd.flow_field.arrival_steps`) steps (``final_error_converged``; acceptance:
   below 1 % of the workspace, 0.01, since the normalised demonstrations span 1), and a
   convergence check: rollouts from ``--check-starts`` uniform random starts in the
   demonstrations' bounding box enlarged by 20 % for ``--check-steps`` steps — fraction within
@@ -65,9 +65,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import mjxrmp  # noqa: F401  (sets XLA flags before any JAX computation)
-from agents.lfd import LfdConfig, arrival_steps, make_train, rollout, train_batched
+from agents.lfd.flow_field import LfdConfig, arrival_steps, make_train, rollout, train_batched
 from mjxrmp.data.lasa import LASA_SHAPES, load_shape
-from mjxrmp.traj_metrics import all_metrics
+from mjxrmp.metrics.trajectory import all_metrics
 
 #: Keys every ``<shape>.npz`` holds.
 NPZ_KEYS = ("demos", "rollouts", "dt", "losses")
@@ -114,7 +114,7 @@ def box(demos: np.ndarray, margin: float = BOX_MARGIN) -> tuple[np.ndarray, np.n
 
 def train_shapes(names: list[str], data: dict, config: LfdConfig, seed: int,
                  log_every: int, log=print):
-    """Train all shapes in one vmapped program (:func:`agents.lfd.train_batched`), in compiled
+    """Train all shapes in one vmapped program (:func:`agents.lfd.flow_field.train_batched`), in compiled
     chunks of ``log_every`` steps with a progress line after each. Returns ``(trainer,
     result)`` with every leaf of ``result`` stacked over shapes."""
     base = jax.random.PRNGKey(seed)
@@ -160,7 +160,7 @@ def _check_steps(value: str) -> int | str:
 def check_horizon(check_steps: int | str | None, config: LfdConfig, field, variables,
                   data: dict, starts: np.ndarray) -> int:
     """Steps of the convergence rollouts: ``10·T`` (``None``), the given number, or for
-    ``"auto"`` :func:`agents.lfd.arrival_steps` over the random ``starts (S, n, 2)`` and the
+    ``"auto"`` :func:`agents.lfd.flow_field.arrival_steps` over the random ``starts (S, n, 2)`` and the
     demonstrations' starts with each shape's ``dt`` (at least ``T − 1``): every start then
     reaches ``10⁻³·ε`` of the goal in the latent space by construction, so the check measures
     whether the goal is reached, not whether it is reached within a fixed time."""
@@ -171,7 +171,7 @@ def check_horizon(check_steps: int | str | None, config: LfdConfig, field, varia
         return int(check_steps)
     if config.integrator != "latent":
         raise SystemExit(f"--check-steps auto needs the latent integrator (the bound is for "
-                         f"agents.lfd.latent_step), got integrator={config.integrator!r}")
+                         f"agents.lfd.flow_field.latent_step), got integrator={config.integrator!r}")
     points = np.concatenate([np.asarray(starts, np.float32),
                              np.asarray(data["demos"][:, :, 0], np.float32)], axis=1)
     r0 = np.asarray(_latent_norm_program(field)(variables, jnp.asarray(points)[:, :, None]))
@@ -269,7 +269,7 @@ def metric_summary(rollouts: np.ndarray, demos: np.ndarray) -> dict:
 def time_epochs(config: LfdConfig, num_epochs: int, seed: int = 0,
                 shape: str = "Sshape") -> dict:
     """Wall time of one full-batch training epoch (one gradient step on all ``7 × 235`` samples
-    of ``shape``, :func:`agents.lfd.make_train`'s step) after compilation: ``num_epochs`` calls
+    of ``shape``, :func:`agents.lfd.flow_field.make_train`'s step) after compilation: ``num_epochs`` calls
     of the jitted one-step ``run``, each waited for. Prints and returns the median (ms), with
     the minimum, the device and the 1-minute load average (other processes on the CPU)."""
     data = load_data([shape])
@@ -316,7 +316,7 @@ def main(argv=None) -> dict:
     p.add_argument("--check-steps", type=_check_steps, default=None,
                    help="rollout steps of the convergence check and of the converged "
                         "demonstration rollouts: a number, or 'auto' = the guaranteed arrival "
-                        "bound of every start (agents.lfd.arrival_steps; latent integrator); "
+                        "bound of every start (agents.lfd.flow_field.arrival_steps; latent integrator); "
                         "default 10·T")
     p.add_argument("--goal-radius", type=float, default=0.05,
                    help="convergence radius of the check (normalised units)")
@@ -393,14 +393,14 @@ def main(argv=None) -> dict:
         "seed": args.seed,
         "config": dataclasses.asdict(config),
         "train_seconds": train_s,
-        "rollout": f"method {config.integrator!r} of agents.lfd.rollout with each shape's dt "
+        "rollout": f"method {config.integrator!r} of agents.lfd.flow_field.rollout with each shape's dt "
                    f"from each demonstration's first sample; metrics on the first T samples, "
                    f"'final_error_converged' after {max(steps, T - 1)} steps",
         "baseline": "straight line from the demonstration's start to the goal at uniform speed "
                     "over the demonstration's duration",
         "convergence_check": {"starts": args.check_starts, "steps": steps,
                               "steps_rule": {None: "10·T", "auto": "guaranteed arrival bound "
-                                             "(agents.lfd.arrival_steps)"}.get(
+                                             "(agents.lfd.flow_field.arrival_steps)"}.get(
                                                  args.check_steps, "given"),
                               "box": f"demonstrations' bounding box enlarged by "
                                      f"{BOX_MARGIN:.0%}",

@@ -1,4 +1,4 @@
-"""Standalone loader for policies exported by ``agents.export.export_policy``.
+"""Standalone loader for policies exported by ``agents.run.export.export_policy``.
 
 Imports only ``jax``, ``numpy`` and the standard library (``jax.export.deserialize`` also needs
 the ``flatbuffers`` package), so this file can be copied next to an exported policy and used

@@ -10,12 +10,12 @@
   within ``--tol`` of its goal and the minimum pairwise distance.
 
 The joint configuration is the stacked positions ``q ∈ R^{2N}``; the task map returns the goal
-offsets ``(N, 2)`` and the obstacle / pairwise distances ``(·, 1)``; ``mjxrmp.rmp2.acceleration``
+offsets ``(N, 2)`` and the obstacle / pairwise distances ``(·, 1)``; ``mjxrmp.core.rmp2.acceleration``
 combines the leaves and a jitted ``lax.scan`` integrates with semi-implicit Euler (dt = 0.01).
 
 Choices the thesis leaves open (documented, not tuned per figure):
 
-* RMPflow constants for both GDSs (see :mod:`mjxrmp.point_rmps`); 8 robots on a circle of radius
+* RMPflow constants for both GDSs (see :mod:`mjxrmp.leaves.point_robot`); 8 robots on a circle of radius
   5, pairwise safety radius 1, start positions perturbed by seeded noise of std 0.05 (plus one
   exactly symmetric start), goal tolerance 0.05.
 * CLF class-K function ``α = γ s²`` with ``γ = 2`` applied to the Riemannian speed
@@ -44,16 +44,16 @@ import jax.numpy as jnp
 import numpy as np
 
 import mjxrmp  # noqa: F401  (sets XLA flags before any JAX computation)
-from mjxrmp import rmp2
-from mjxrmp.clf import (
+from mjxrmp.core import rmp2
+from mjxrmp.leaves.clf import (
     clf_leaf,
     potential_nominal,
     quadratic_alpha,
     sinusoidal_nominal,
     spiral_nominal,
 )
-from mjxrmp.gds import family
-from mjxrmp.point_rmps import (
+from mjxrmp.leaves.gds import family
+from mjxrmp.leaves.point_robot import (
     CollisionParams,
     GoalAttractorParams,
     collision_avoidance,

@@ -5,7 +5,7 @@ Fig 6.3 (safe-episode %) and Fig 6.4 (Franka), mean ± 1 std over seeds.
 Two stages, each resumable:
 
 * ``train`` — for every (environment, policy) pair, a run directory ``<runs>/<env>_<policy>``
-  trained by :func:`agents.training.run_training` (all seeds in one vmapped program); a finished
+  trained by :func:`agents.run.training.run_training` (all seeds in one vmapped program); a finished
   run is skipped, an unfinished one resumed. Per-run speed (compile time, steps/s, the
   per-iteration split rollout / policy forward / update) goes to ``<runs>/<env>_<policy>/
   speed.json``.
@@ -40,8 +40,8 @@ import mjxrmp  # noqa: F401  (sets the XLA:CPU flag before JAX initialises)
 # isort: split
 import numpy as np
 
-from agents import checkpoint
-from agents.training import (
+from agents.run import checkpoint
+from agents.run.training import (
     RunSpec,
     build,
     episode_window,

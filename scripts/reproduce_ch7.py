@@ -14,10 +14,10 @@ Stages (``--stage all`` runs them in order; each is resumable):
    episodes, default ``--scale``),
    collected in the compiled graph and cached as checksummed files under ``OUT/data``.
 2. **train** — for every environment × scenario (``ILfO IL RLfO RL-expert RL-sample``) ×
-   learner (:data:`offline.experiment.TABLE_LEARNERS`) that has data in that scenario
-   (:func:`offline.experiment.applicable`): ``--seeds`` seeds vmapped in one program,
-   ``--steps`` gradient steps (:class:`offline.experiment.Budget`), then ``--eval-episodes``
-   episodes per seed in the environment (:mod:`offline.evaluate`, normalised score: uniform
+   learner (:data:`offline.experiment.run.TABLE_LEARNERS`) that has data in that scenario
+   (:func:`offline.experiment.run.applicable`): ``--seeds`` seeds vmapped in one program,
+   ``--steps`` gradient steps (:class:`offline.experiment.run.Budget`), then ``--eval-episodes``
+   episodes per seed in the environment (:mod:`offline.experiment.evaluate`, normalised score: uniform
    random 0, hand-designed expert 100; last iterate). One JSON line per cell in
    ``OUT/results.jsonl``; cells already there are skipped. The Oracle reads only the dynamics
    data, so it is trained once per dynamics dataset (``D_X`` in ILfO, RLfO and RL-sample;
@@ -64,8 +64,8 @@ PRESETS = {
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    from offline.experiment import TABLE_LEARNERS
-    from offline.sweep import (
+    from offline.experiment.run import TABLE_LEARNERS
+    from offline.survival.sweep import (
         add_checkpoint_option,
         add_learner_options,
         add_substeps_option,
@@ -124,7 +124,7 @@ def recipe_scale(args, recipe: str) -> int:
 
 def data_path(out: Path, env: str, recipe: str, scale: int, seed: int,
               substeps: int | None = None) -> Path:
-    from offline.sweep import substeps_tag
+    from offline.survival.sweep import substeps_tag
 
     tag = "".join(f"_{part}" for part in substeps_tag(substeps))
     return out / "data" / f"{env.replace('/', '-')}_{recipe}_x{scale}_s{seed}{tag}.npz"
@@ -132,7 +132,7 @@ def data_path(out: Path, env: str, recipe: str, scale: int, seed: int,
 
 def collect_stage(args) -> None:
     """Collect (or find cached) the mixed and expert datasets of every environment."""
-    from offline.sweep import collect_cached, control_rate_kwargs
+    from offline.survival.sweep import collect_cached, control_rate_kwargs
 
     for env in args.envs:
         for recipe in ("mixed", "expert"):
@@ -143,7 +143,7 @@ def collect_stage(args) -> None:
 
 
 def _cell_key(env: str, scenario: str, learner: str, args) -> str:
-    from offline.sweep import setting_key, substeps_tag
+    from offline.survival.sweep import setting_key, substeps_tag
 
     key = [env, scenario, learner, args.steps, list(args.hidden), args.seeds, args.scale,
            args.remove_terminals, args.eval_episodes]
@@ -155,17 +155,19 @@ def _cell_key(env: str, scenario: str, learner: str, args) -> str:
 def _expert_scale(scenario: str, args) -> int | None:
     """``--expert-scale`` in scenarios that read the expert set; None for the default and for
     RL-sample, whose cells are the same computation for every expert set."""
-    from offline.scenarios import EXPERT_FREE
+    from offline.data.scenarios import EXPERT_FREE
 
     return None if scenario in EXPERT_FREE else args.expert_scale
 
 
 def train_stage(args) -> None:
     """Train and evaluate every missing cell; append one JSON line per cell."""
-    from offline import collect, evaluate, experiment, scenarios
-    from offline import data as odata
-    from offline.learner import actor_params
-    from offline.sweep import (
+    from offline.data import collect, scenarios
+    from offline.data import dataset as odata
+    from offline.experiment import evaluate
+    from offline.experiment import run as experiment
+    from offline.learners.base import actor_params
+    from offline.survival.sweep import (
         LearningCurve,
         control_rate_kwargs,
         curve_path,
@@ -248,12 +250,12 @@ def train_stage(args) -> None:
 def _share_run(results: Path, cell: str, env: str, scenario: str, learner: str, args,
                reward_transitions: int) -> bool:
     """Append ``cell``'s row as a copy of a finished run of ``learner`` (one of
-    :data:`offline.experiment.DYNAMICS_ONLY`) in a scenario with the same dynamics data
-    (:func:`offline.scenarios.same_dynamics`), if there is one: the same computation, so the
+    :data:`offline.experiment.run.DYNAMICS_ONLY`) in a scenario with the same dynamics data
+    (:func:`offline.data.scenarios.same_dynamics`), if there is one: the same computation, so the
     Oracle is trained once per dynamics dataset, as thesis Table 7.3 reports one Oracle score for
     RLfO and RL-expert. The row records ``shared_from``. Returns whether it did."""
-    from offline.scenarios import same_dynamics
-    from offline.sweep import result_rows
+    from offline.data.scenarios import same_dynamics
+    from offline.survival.sweep import result_rows
 
     rows = {r["cell"]: r for r in result_rows(results)}  # read afresh: other processes append
     for other in same_dynamics(scenario):
@@ -278,8 +280,8 @@ def _fmt(mean: float, se: float, bold: bool) -> str:
 
 def table_stage(args) -> dict:
     """Write and print the Table 7.3-style table; return the per-cell summary."""
-    from offline.experiment import TABLE_LEARNERS
-    from offline.sweep import result_rows, setting_fields
+    from offline.experiment.run import TABLE_LEARNERS
+    from offline.survival.sweep import result_rows, setting_fields
 
     path = args.out / "results.jsonl"
     if not path.exists():
@@ -347,7 +349,7 @@ def table_stage(args) -> dict:
 
 def main(argv: Sequence[str] | None = None) -> None:
     """Run the selected stages."""
-    from offline.sweep import run_stages
+    from offline.survival.sweep import run_stages
 
     args = parse_args(argv)
     run_stages(args, {"collect": collect_stage, "train": train_stage, "table": table_stage},

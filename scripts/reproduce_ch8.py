@@ -19,17 +19,17 @@ seed-steps. Each training process prints ``[time]`` lines (train and evaluation 
 program) to tune ``--steps``; a process cut off by a time limit loses only the program in
 flight (finished cells are in ``results.jsonl``; rerun the same command to continue).
 
-Datasets (3-link ``three_link/env3``, :func:`offline.collect.collect_recipe` without a PPO run, i.e.
+Datasets (3-link ``three_link/env3``, :func:`offline.data.collect.collect_recipe` without a PPO run, i.e.
 its documented fallback sources, or with ``--ppo-run RUN_DIR`` that run's snapshots): for every
 recipe of ``--recipes`` (default ``mixed`` and ``medium-replay``) ``<recipe>-cut`` — episodes cut at
 the first collision (a terminal): the length bias of §8.3.3 — and ``<recipe>-full`` —
 ``cut_at_collision=False``, every episode runs the full horizon (no length bias, like D4RL's
 halfcheetah in §8.4.1). With ``--goal-deadline N``
 also ``<recipe>-deadline``: the ``-cut`` data with every episode that has not reached the goal
-by its ``N``-th step cut there as a terminal (:func:`offline.survival.cut_before_goal`, the
+by its ``N``-th step cut there as a terminal (:func:`offline.survival.rewards.cut_before_goal`, the
 "timeout-before-goal" cut: a designed, strong length bias); it counts as length-biased in (a)
 and (b). With ``--goal-deadline N`` also ``<recipe>-goal``: the same transitions with the goal
-as the only absorbing state (:func:`offline.survival.absorbing_goal`): an episode that ends
+as the only absorbing state (:func:`offline.survival.rewards.absorbing_goal`): an episode that ends
 within the success radius ends in a terminal, every other one (deadline cut, collision, or
 horizon) in a timeout — §8.4.1's goal-oriented length bias (successes unbounded, failures
 bounded), with the failures' terminals removed as in the thesis's footnote 4 on hopper and
@@ -38,7 +38,7 @@ and (b) as well. And ``<recipe>-arrive``: as ``-goal``, but a successful episode
 terminal at its first transition into the goal region (``absorbing_goal(..., at_arrival=True)``),
 as the thesis's Meta-World data do, rather than after lingering there; also length-biased.
 With ``--safety`` (on by default) also ``<safety-dataset>-filtered``:
-:func:`offline.filtering.filter_collision_margin` of ``--safety-dataset`` (default ``mixed-full``,
+:func:`offline.survival.filtering.filter_collision_margin` of ``--safety-dataset`` (default ``mixed-full``,
 whose colliding episodes run on through the obstacles) with ``--margin`` (default the reward's δ =
 0.05 m: exactly the transitions with a non-zero obstacle cost are removed, §8.4.2's "remove all
 transitions with non-zero cost").
@@ -47,13 +47,13 @@ Stages (``--stage all`` runs them in order; each is resumable):
 
 1. **collect** — the ``-cut`` / ``-full`` datasets, cached as checksummed files in ``OUT/data``.
 2. **train** — per dataset × learner: ATAC, PSPI, IQL and CQL with every data reward of
-   ``--rewards`` (original / zero / random U[0,1] / negated, :func:`offline.survival.variant`,
+   ``--rewards`` (original / zero / random U[0,1] / negated, :func:`offline.survival.rewards.variant`,
    terminals ``--terminals keep`` or ``remove``) and ``--seeds`` seeds in **one** vmapped program
-   (:func:`offline.sweep.reward_batched`), and BC (reads no reward) once per dataset; the
+   (:func:`offline.survival.sweep.reward_batched`), and BC (reads no reward) once per dataset; the
    filtered dataset gets the original reward only, and only ATAC, PSPI and BC. ``--steps``
-   gradient steps (:class:`offline.experiment.Budget`), then the last iterate of every run is
+   gradient steps (:class:`offline.experiment.run.Budget`), then the last iterate of every run is
    evaluated on
-   ``--eval-episodes`` episodes (:mod:`offline.evaluate`: normalised score — uniform random 0,
+   ``--eval-episodes`` episodes (:mod:`offline.experiment.evaluate`: normalised score — uniform random 0,
    hand-designed expert 100 — safe %, success %). One JSON line per (dataset, learner, reward)
    cell in ``OUT/results.jsonl``; cells already there are skipped, so processes split by
    ``--datasets`` / ``--learners`` / ``--rewards`` can share ``OUT``. With ``--checkpoints
@@ -62,7 +62,7 @@ Stages (``--stage all`` runs them in order; each is resumable):
    ``--curve`` every run is also evaluated after each chunk, the same way as its last iterate;
    the rows then carry ``curve`` (steps and per-seed results per step).
    With ``--reward-form goal`` the true reward is used in the goal-oriented form of the
-   thesis's goal-oriented experiments (§7.4.2, §8.4.1; :func:`offline.survival.goal_oriented`):
+   thesis's goal-oriented experiments (§7.4.2, §8.4.1; :func:`offline.survival.rewards.goal_oriented`):
    ``r − r_max ≤ 0``, so that the negated reward is ``r_max − r ≥ 0``. It changes the
    ``original`` and ``negated`` cells (their keys carry the form); the zero and random cells
    are the same data and keep their keys, so they are shared with ``--reward-form env``. The
@@ -71,7 +71,7 @@ Stages (``--stage all`` runs them in order; each is resumable):
    cells get their own key, the other learners' keep theirs).
 3. **figures** — ``fig8_4.png`` (rows datasets, columns learners, bars per reward: normalised
    score ± s.e. over seeds, BC as a dashed line), ``fig8_5.png`` (episode length vs return per
-   dataset, :func:`offline.survival.length_bias_statistics`, correlation in the title),
+   dataset, :func:`offline.survival.rewards.length_bias_statistics`, correlation in the title),
    ``fig8_6.png`` (eq 8.3 positive-data-bias estimate per dataset and learner; ∞ drawn as a
    capped, labelled bar), ``fig8_curves.png`` (score against gradient steps, for cells trained
    with ``--curve``), ``table.md`` / ``table.csv``, ``safety.md`` / ``safety.json`` and
@@ -131,9 +131,9 @@ PRESETS = {
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    from offline.collect import RECIPES
-    from offline.survival import REWARD_FORMS, REWARD_VARIANTS, TERMINAL_MODES
-    from offline.sweep import (
+    from offline.data.collect import RECIPES
+    from offline.survival.rewards import REWARD_FORMS, REWARD_VARIANTS, TERMINAL_MODES
+    from offline.survival.sweep import (
         add_checkpoint_option,
         add_learner_options,
         add_substeps_option,
@@ -178,7 +178,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--goal-deadline", type=int, default=None, metavar="STEPS",
                    help="also train on <recipe>-deadline: the collision-cut data with every "
                         "episode that has not reached the goal by this many steps cut there "
-                        "(a terminal; offline.survival.cut_before_goal): a designed length bias")
+                        "(a terminal; offline.survival.rewards.cut_before_goal): a designed length bias")
     p.add_argument("--margin", type=float, default=None,
                    help="filter clearance in metres (default: the reward's obstacle delta)")
     p.add_argument("--data-seed", type=int, default=0)
@@ -186,7 +186,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                    help="collect the recipes' PPO sources from this training run (scripts/"
                         "train.py; medium-replay is its checkpoints up to --ppo-step, so "
                         "train it with --keep-checkpoints 0); default: the scripted fallback "
-                        "sources of offline.collect")
+                        "sources of offline.data.collect")
     p.add_argument("--ppo-step", type=int, default=None,
                    help="the run's checkpoint that counts as 'medium' (default: its newest)")
     add_substeps_option(p)
@@ -207,7 +207,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         except ValueError as e:
             p.error(str(e))
     if args.margin is None:
-        from offline.collect import make_env
+        from offline.data.collect import make_env
 
         args.margin = float(make_env(ENV).obstacle_delta)
     base = base_datasets(args.recipes, args.goal_deadline)
@@ -267,14 +267,14 @@ def _ppo_tag(args) -> list:
 
 def env_kwargs(args) -> dict[str, int] | None:
     """The environment's constructor arguments for ``--substeps``
-    (:func:`offline.sweep.control_rate_kwargs`; None: its defaults)."""
-    from offline.sweep import control_rate_kwargs
+    (:func:`offline.survival.sweep.control_rate_kwargs`; None: its defaults)."""
+    from offline.survival.sweep import control_rate_kwargs
 
     return control_rate_kwargs(ENV, args.substeps)
 
 
 def data_path(args, recipe: str, cut: bool) -> Path:
-    from offline.sweep import substeps_tag
+    from offline.survival.sweep import substeps_tag
 
     mode = "cut" if cut else "full"
     tag = "".join(f"_{part}" for part in _ppo_tag(args) + substeps_tag(args.substeps))
@@ -284,7 +284,7 @@ def data_path(args, recipe: str, cut: bool) -> Path:
 
 def collect_stage(args) -> None:
     """Collect (or find cached) the cut and full datasets of every recipe."""
-    from offline.sweep import collect_cached
+    from offline.survival.sweep import collect_cached
 
     for name in base_datasets(args.recipes):
         recipe, cut, _ = split_name(name)
@@ -295,10 +295,10 @@ def collect_stage(args) -> None:
 
 def load_dataset(args, name: str):
     """The dataset ``name`` (loaded, checked against the environment; filtered if asked)."""
-    from offline import collect
-    from offline import data as odata
-    from offline.filtering import filter_collision_margin
-    from offline.survival import absorbing_goal, cut_before_goal
+    from offline.data import collect
+    from offline.data import dataset as odata
+    from offline.survival.filtering import filter_collision_margin
+    from offline.survival.rewards import absorbing_goal, cut_before_goal
 
     recipe, cut, filtered = split_name(name)
     path = data_path(args, recipe, cut)
@@ -322,7 +322,7 @@ def _cell_key(dataset: str, learner: str, reward: str, args) -> str:
     margin = args.margin if split_name(dataset)[2] else None
     key = [dataset, learner, reward, args.terminals, args.steps, list(args.hidden), args.seeds,
            args.batch, args.scale, args.eval_episodes, margin]
-    from offline.sweep import setting_key, substeps_tag
+    from offline.survival.sweep import setting_key, substeps_tag
 
     deadline = ["goal_deadline", args.goal_deadline] if is_deadline(dataset) else []
     return json.dumps(key + deadline + _ppo_tag(args) + substeps_tag(args.substeps)
@@ -348,7 +348,7 @@ def _form_tag(reward: str, args) -> list:
 
 def _form(reward: str, args) -> str | None:
     """The true reward's form behind the data reward ``reward`` (None: it does not use it)."""
-    from offline.survival import FORM_DEPENDENT
+    from offline.survival.rewards import FORM_DEPENDENT
 
     return args.reward_form if reward in FORM_DEPENDENT else None
 
@@ -359,7 +359,7 @@ class _Evaluation:
     functions agree; a probe checks that before reusing the first one."""
 
     def __init__(self, args, probe: np.ndarray):
-        from offline import evaluate
+        from offline.experiment import evaluate
 
         self.evaluator = evaluate.make_evaluator(ENV, args.eval_episodes,
                                                  reference_episodes=args.reference_episodes,
@@ -395,8 +395,9 @@ class _Evaluation:
 
 def train_stage(args) -> None:
     """Train and evaluate every missing cell; append one JSON line per cell."""
-    from offline import experiment, sweep
-    from offline.survival import goal_oriented
+    from offline.experiment import run as experiment
+    from offline.survival import sweep
+    from offline.survival.rewards import goal_oriented
 
     results = args.out / "results.jsonl"
     done = sweep.done_cells(results)
@@ -490,7 +491,7 @@ def load_cells(args) -> dict[tuple[str, str, str], dict]:
     path = args.out / "results.jsonl"
     if not path.exists():
         raise SystemExit(f"no results at {path}: run --stage train first")
-    from offline.sweep import result_rows
+    from offline.survival.sweep import result_rows
 
     cells = {}
     for r in result_rows(path):
@@ -517,7 +518,7 @@ def _json_float(x: float) -> float | str | None:
 
 def bias_estimates(cells: dict) -> dict[tuple[str, str], float]:
     """Eq 8.3 per (dataset, learner) with all three wrong-reward scores (means, Ĵ* = 100)."""
-    from offline.survival import WRONG_REWARDS, positive_data_bias
+    from offline.survival.rewards import WRONG_REWARDS, positive_data_bias
 
     out = {}
     for d, lrn in {(d, lrn) for d, lrn, _ in cells}:
@@ -529,7 +530,7 @@ def bias_estimates(cells: dict) -> dict[tuple[str, str], float]:
 
 def acceptance(args, cells: dict, bias: dict, lengths: dict) -> dict:
     """The acceptance checks of the module docstring, computed from ``cells``."""
-    from offline.survival import WRONG_REWARDS
+    from offline.survival.rewards import WRONG_REWARDS
 
     base = base_datasets(args.recipes, args.goal_deadline)
     well_above, wrong_mean = {}, {}
@@ -624,7 +625,7 @@ def _plot(args, cells: dict, bias: dict, lengths: dict) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from offline.survival import REWARD_VARIANTS
+    from offline.survival.rewards import REWARD_VARIANTS
 
     # Rows and columns with results only (a sweep may train part of the grid).
     trained = {(d, lrn) for d, lrn, _ in cells}
@@ -724,7 +725,7 @@ def _plot_curves(args, cells: dict) -> None:
 
 def length_statistics(args, statistics: Callable[[Any], dict]) -> dict[str, dict]:
     """Fig 8.5's per-dataset length/return statistics (``statistics`` is
-    :func:`offline.survival.length_bias_statistics`), computed from the datasets in
+    :func:`offline.survival.rewards.length_bias_statistics`), computed from the datasets in
     ``OUT/data`` and cached in ``OUT/length_bias.json``, so the figures can be redrawn where
     only the results were copied (the datasets are large); cached entries fill in datasets
     that are missing."""
@@ -744,7 +745,7 @@ def length_statistics(args, statistics: Callable[[Any], dict]) -> dict[str, dict
 
 def figures_stage(args) -> dict:
     """Write the figures, tables, safety report and acceptance summary; return the summary."""
-    from offline.survival import REWARD_VARIANTS, length_bias_statistics
+    from offline.survival.rewards import REWARD_VARIANTS, length_bias_statistics
 
     cells = load_cells(args)
     bias = bias_estimates(cells)
@@ -805,7 +806,7 @@ def figures_stage(args) -> dict:
 
 def main(argv: Sequence[str] | None = None) -> None:
     """Run the selected stages."""
-    from offline.sweep import run_stages
+    from offline.survival.sweep import run_stages
 
     args = parse_args(argv)
     run_stages(

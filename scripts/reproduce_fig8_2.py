@@ -5,7 +5,7 @@
     python scripts/reproduce_fig8_2.py          # docs/figures/fig8_2.png, results/fig8_2.json
     python scripts/reproduce_fig8_2.py --seed 3 --penalty 1.0
 
-Collects suboptimal, length-biased data (:func:`offline.tabular.collect`: lava episodes cut,
+Collects suboptimal, length-biased data (:func:`offline.survival.tabular.collect`: lava episodes cut,
 time-outs after ``T`` steps, the absorbing key continued to ``H``), trains PEVI on it with the
 true, zero, random and negated rewards, clones the data (BC), rolls every policy out in the true
 MDP and reports the true return, whether the key was reached and whether lava was touched. The
@@ -29,7 +29,7 @@ import mjxrmp  # noqa: F401  (sets the XLA:CPU flag before JAX initialises)
 # isort: split
 import numpy as np
 
-from offline import tabular
+from offline.survival import tabular
 
 ROOT = Path(__file__).resolve().parent.parent
 

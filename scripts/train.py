@@ -3,7 +3,7 @@
 With no arguments: ``rmp_residual`` on ``three_link/env3``, CPU-sized (``--preset cpu``:
 64 environments × 128 steps × 400 iterations, about 5 minutes on 2 CPU cores), written to
 ``runs/three_link-env3_rmp_residual``. ``--preset thesis`` runs the thesis scale (128 × 512 steps,
-500 iterations, 30 epochs; meant for a GPU). See :mod:`agents.training` for what the run
+500 iterations, 30 epochs; meant for a GPU). See :mod:`agents.run.training` for what the run
 directory holds; ``--resume`` continues a run from its newest checkpoint.
 
 Examples::
@@ -28,9 +28,9 @@ from mjxrmp import _xla
 _xla.configure_cpu_flags()
 
 import envs  # noqa: E402
-from agents.policies import KINDS  # noqa: E402
-from agents.ppo import PPOConfig  # noqa: E402
-from agents.training import (  # noqa: E402
+from agents.ppo.policies import KINDS  # noqa: E402
+from agents.ppo.train import PPOConfig  # noqa: E402
+from agents.run.training import (  # noqa: E402
     PRESETS,
     RunSpec,
     improvement_summary,

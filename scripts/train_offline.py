@@ -13,7 +13,7 @@ file) or, without it, a ``--recipe`` dataset of ``--scale`` episodes per source 
 ``--env`` (default ``mixed``). PLfO scenarios (``--scenario ILfO|IL|RLfO|RL-expert|RL-sample``)
 also need expert data: ``--expert`` or an ``expert`` recipe collected the same way. Without a
 scenario the learner reads the dataset's own rewards (``Oracle``/``PSPI``/``IQL``/``CQL``/``BC``).
-Learners and what each reads: :mod:`offline.experiment`.
+Learners and what each reads: :mod:`offline.experiment.run`.
 
 Writes to ``--out``: ``metrics.csv`` (per chunk: steps, seed, every training metric),
 ``checkpoints/`` (orbax, every chunk; ``--resume`` continues from the newest and refuses one of
@@ -21,7 +21,7 @@ another learner, scenario or configuration, ``--normalize-observations`` and ``-
 included), and
 ``result.json`` (the configuration, wall times and the evaluation: mean return, normalised
 score — random 0, expert 100 —, safe % and success % per run). A progress bar shows steps,
-losses and the ETA. ``--betas`` (ATAC-type learners, :data:`offline.experiment.BETA_LEARNERS`)
+losses and the ETA. ``--betas`` (ATAC-type learners, :data:`offline.experiment.run.BETA_LEARNERS`)
 trains every seed at every Bellman weight β in one vmapped program (runs seed-major; ``beta`` in
 ``metrics.csv`` and ``result.json``) — ATAC's per-dataset selection of β.
 """
@@ -47,9 +47,9 @@ import numpy as np
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    from offline.experiment import LEARNERS
-    from offline.scenarios import SCENARIOS
-    from offline.sweep import add_learner_options
+    from offline.data.scenarios import SCENARIOS
+    from offline.experiment.run import LEARNERS
+    from offline.survival.sweep import add_learner_options
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--learner", required=True, choices=LEARNERS)
@@ -85,7 +85,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     if args.expert is not None and args.scenario is None:
         p.error("--expert is only used with --scenario")
     if args.betas is not None:
-        from offline.experiment import BETA_LEARNERS
+        from offline.experiment.run import BETA_LEARNERS
 
         if args.learner not in BETA_LEARNERS:
             p.error(f"--betas needs a learner with ATAC's Bellman weight {list(BETA_LEARNERS)}, "
@@ -99,8 +99,8 @@ def load_data(args):
     """``(env_name, dynamics, reward_data)``: the dataset (or scenario pair) of the run."""
     import warnings
 
-    from offline import collect, scenarios
-    from offline import data as odata
+    from offline.data import collect, scenarios
+    from offline.data import dataset as odata
 
     def get(path, recipe):
         if path is not None:
@@ -129,11 +129,12 @@ def load_data(args):
 
 def main(argv: Sequence[str] | None = None) -> dict:
     """Train, checkpoint, evaluate; return the result dictionary."""
-    from agents import checkpoint
-    from agents.training import ProgressBar
-    from offline import evaluate, experiment
-    from offline.learner import actor_params
-    from offline.sweep import setting_changes, setting_fields, train_program
+    from agents.run import checkpoint
+    from agents.run.training import ProgressBar
+    from offline.experiment import evaluate
+    from offline.experiment import run as experiment
+    from offline.learners.base import actor_params
+    from offline.survival.sweep import setting_changes, setting_fields, train_program
 
     args = parse_args(argv)
     t_start = time.perf_counter()

@@ -6,7 +6,7 @@ learner that maximises the reward moves its policy from the behaviour's mean act
 
 import numpy as np
 
-from offline import data as odata
+from offline.data import dataset as odata
 
 LIMIT = 2.0
 A_STAR = 0.5  # best normalised action of the bandit

@@ -15,7 +15,7 @@ Preprocessing (:func:`load_task`), per demonstration:
    kept; the last resampled time is the largest multiple of ``dt`` within the recording).
 3. **Velocities** by forward differences ``(q_{t+1} − q_t)/dt``, zero at the last sample (so that
    explicit Euler with the same ``dt`` reproduces the demonstration; the same rule as
-   :func:`agents.lfd.finite_difference_velocities`, restated here because ``mjxrmp`` does not
+   :func:`agents.lfd.flow_field.finite_difference_velocities`, restated here because ``mjxrmp`` does not
    import ``agents``).
 4. **Control points** (§5.2.3: "3 control points on the hand: one at the centre of the gripper
    and one at each of the tips of the two-fingered gripper"): positions by the forward kinematics

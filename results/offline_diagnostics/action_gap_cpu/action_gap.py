@@ -12,10 +12,10 @@ import sys
 import jax
 import jax.numpy as jnp
 import numpy as np
+from offline.sweep import control_rate_kwargs
 
 from envs.evaluate import hand_designed_policy
 from offline import collect
-from offline.sweep import control_rate_kwargs
 
 ENV_NAME = sys.argv[2] if len(sys.argv) > 2 else "three_link/env3"
 SUBSTEPS = int(sys.argv[3]) if len(sys.argv) > 3 else None

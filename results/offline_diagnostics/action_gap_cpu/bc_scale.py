@@ -6,9 +6,9 @@ import warnings
 
 import jax
 import numpy as np
+from offline.learner import actor_params
 
 from offline import collect, evaluate, experiment
-from offline.learner import actor_params
 
 
 def main() -> None:

@@ -18,11 +18,11 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from offline.learner import actor_params
 
 from offline import atac, bc, collect, evaluate
 from offline import data as odata
 from offline.experiment import init_runs, seed_beta_runs, seed_keys, train_chunked
-from offline.learner import actor_params
 
 ENV = "three_link/env3"
 

@@ -10,12 +10,12 @@ import sys
 
 import jax
 import jax.numpy as jnp
-
 from agents.policies import ObservationSpec
-from mjxrmp import policies as rmp_policies
-from offline import evaluate
 from offline.residual_actor import BASE_VARIANT, base_pre_tanh
 from offline.sweep import control_rate_kwargs
+
+from mjxrmp import policies as rmp_policies
+from offline import evaluate
 
 ENV = sys.argv[1]
 SUBSTEPS = int(sys.argv[2]) if len(sys.argv) > 2 else 24

@@ -14,11 +14,11 @@ import time
 
 import jax
 import numpy as np
+from offline.learner import actor_params
+from offline.sweep import control_rate_kwargs
 
 from offline import collect, evaluate, experiment
 from offline import data as odata
-from offline.learner import actor_params
-from offline.sweep import control_rate_kwargs
 
 DATA, ENV, SOURCE = sys.argv[1], sys.argv[2], sys.argv[3]
 SEEDS = int(sys.argv[4]) if len(sys.argv) > 4 else 3

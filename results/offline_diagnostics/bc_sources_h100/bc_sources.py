@@ -16,11 +16,11 @@ import time
 
 import jax
 import numpy as np
+from offline.learner import actor_params
+from offline.sweep import control_rate_kwargs
 
 from offline import collect, evaluate, experiment
 from offline import data as odata
-from offline.learner import actor_params
-from offline.sweep import control_rate_kwargs
 
 DATA, ENV = sys.argv[1], sys.argv[2]
 STEPS = int(sys.argv[3]) if len(sys.argv) > 3 else 50_000

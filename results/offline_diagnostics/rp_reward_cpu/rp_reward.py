@@ -12,11 +12,11 @@ import sys
 
 import jax
 import numpy as np
+from offline.mahalo import RewardNetConfig, make_reward_net
+from offline.plfo_baselines import RPConfig, make_train_rp
 
 from offline import collect, scenarios
 from offline import data as odata
-from offline.mahalo import RewardNetConfig, make_reward_net
-from offline.plfo_baselines import RPConfig, make_train_rp
 
 DATA, N_EXPERT = sys.argv[1], int(sys.argv[2])
 STEPS = int(sys.argv[3]) if len(sys.argv) > 3 else 50_000

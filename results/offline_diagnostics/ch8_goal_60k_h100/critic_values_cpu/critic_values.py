@@ -34,11 +34,11 @@ import mjxrmp  # noqa: F401  (sets the XLA:CPU flag before JAX initialises)
 import jax
 import jax.numpy as jnp
 import numpy as np
+from offline.networks import QEnsemble
+from offline.sweep import run_actor_params
 
 from offline import atac, collect, experiment, survival
 from offline import data as odata
-from offline.networks import QEnsemble
-from offline.sweep import run_actor_params
 
 ENV = "three_link/env3"
 DEADLINE = 350

@@ -1,0 +1,103 @@
+"""Flax networks for PPO (DESIGN §5.1, ANCHOR_FACTS §4).
+
+* :class:`GaussianPolicy` — MLP mean (hidden sizes and activation configurable, output layer
+  initialised with RLlib's ``normc`` scheme at scale 0.1) and a state-independent log standard
+  deviation initialised at −1. ``__call__(obs, norm=None) -> (mean, log_std)``, the MLP reading
+  the observation normalised by the running statistics ``norm`` (:mod:`agents.ppo.normalization`);
+  ``log_std`` has shape ``(action_size,)`` and broadcasts against ``mean``.
+* :class:`ValueMLP` — MLP (256, 128) tanh by default, scalar output: ``__call__(obs) -> (...,)``.
+
+Both work on a single observation ``(obs_size,)`` or on any leading batch shape.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+from agents.ppo.normalization import RunningStats, normalize
+
+#: Activations accepted by name (``PPOConfig.policy_activation`` / ``value_activation``).
+ACTIVATIONS: dict[str, Callable[[jax.Array], jax.Array]] = {
+    "tanh": jnp.tanh,
+    "relu": jax.nn.relu,
+    "elu": jax.nn.elu,
+    "gelu": jax.nn.gelu,
+    "swish": jax.nn.swish,
+}
+
+
+def normc(scale: float = 1.0):
+    """RLlib's ``normc_initializer``: Gaussian columns rescaled to Euclidean norm ``scale``.
+
+    For a Dense kernel ``(fan_in, fan_out)`` every output unit's weight vector has norm
+    ``scale``.
+    """
+
+    def init(key, shape, dtype=jnp.float32):
+        w = jax.random.normal(key, shape, dtype)
+        norm = jnp.sqrt(jnp.sum(w * w, axis=0, keepdims=True))
+        return (scale * w / norm).astype(dtype)
+
+    return init
+
+
+def activation_fn(name: str) -> Callable[[jax.Array], jax.Array]:
+    """The activation called ``name`` (clear error for unknown names)."""
+    if name not in ACTIVATIONS:
+        raise ValueError(f"unknown activation={name!r}; valid names are {sorted(ACTIVATIONS)}")
+    return ACTIVATIONS[name]
+
+
+class MLP(nn.Module):
+    """Hidden layers with ``activation``, then a linear output layer of ``out_size`` units."""
+
+    hidden_sizes: Sequence[int]
+    out_size: int
+    activation: str = "tanh"
+    out_scale: float = 1.0
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        act = activation_fn(self.activation)
+        for i, h in enumerate(self.hidden_sizes):
+            x = act(nn.Dense(h, kernel_init=normc(1.0), name=f"hidden_{i}")(x))
+        return nn.Dense(self.out_size, kernel_init=normc(self.out_scale), name="out")(x)
+
+
+class GaussianPolicy(nn.Module):
+    """Diagonal Gaussian policy: MLP mean, state-independent ``log_std`` (see module doc)."""
+
+    action_size: int
+    hidden_sizes: Sequence[int] = (256, 128)
+    activation: str = "relu"
+    out_scale: float = 0.1
+    log_std_init: float = -1.0
+
+    @nn.compact
+    def __call__(self, obs: jax.Array, norm: RunningStats | None = None
+                 ) -> tuple[jax.Array, jax.Array]:
+        mean = MLP(self.hidden_sizes, self.action_size, self.activation, self.out_scale,
+                   name="mean")(normalize(norm, obs))
+        log_std = self.param(
+            "log_std", nn.initializers.constant(self.log_std_init), (self.action_size,)
+        )
+        return mean, log_std
+
+
+class ValueMLP(nn.Module):
+    """State-value network, MLP (256, 128) tanh by default; returns shape ``obs.shape[:-1]``."""
+
+    hidden_sizes: Sequence[int] = (256, 128)
+    activation: str = "tanh"
+    out_scale: float = 1.0
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        return MLP(self.hidden_sizes, 1, self.activation, self.out_scale, name="mlp")(obs)[..., 0]
+
+
+__all__ = ["ACTIVATIONS", "MLP", "GaussianPolicy", "ValueMLP", "activation_fn", "normc"]
