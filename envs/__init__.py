@@ -1,4 +1,4 @@
-"""MJX reaching environments with the brax ``Env`` API (DESIGN §4).
+"""MJX reaching environments with the brax ``Env`` API (docs/design.md §2.2).
 
 Names for :func:`make` and, in brackets, for ``brax.envs.get_environment`` (registered when this
 package is imported):

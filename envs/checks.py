@@ -1,4 +1,4 @@
-"""Input checks shared by the environments (clear errors at trace time, DESIGN §4)."""
+"""Input checks shared by the environments (clear errors at trace time, docs/design.md §2.2)."""
 
 from __future__ import annotations
 

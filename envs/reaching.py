@@ -1,6 +1,6 @@
 """MJX reaching environments with the brax ``Env`` API: planar 3-link and Franka Panda.
 
-Thesis §6.2–6.3, DESIGN §4, ANCHOR_FACTS §3.
+Thesis §6.2–6.3, docs/design.md §2.2, docs/design.md §4.3.
 
 **Control (acceleration actions through PD tracking).** The action is a joint acceleration,
 NaNs replaced by 0 and clipped to ``±action_limit`` (1 by default). The environment keeps a

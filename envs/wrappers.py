@@ -3,7 +3,7 @@ inside the environment (:class:`RMPInEnv`).
 
 brax's ``AutoResetWrapper`` restores a cached first ``pipeline_state``/``obs`` and keeps
 ``state.info`` — a reaching episode would then restart with the *previous* goal and obstacles
-(DESIGN §8.3). :class:`AutoResetWrapper` here instead calls ``reset`` with the fresh key the
+(docs/design.md §5.3). :class:`AutoResetWrapper` here instead calls ``reset`` with the fresh key the
 environment stored in ``state.info["rng"]`` at its last reset, so every reset inside the compiled
 graph samples a new scene. Use :func:`wrap` (vmap → episode limit → this auto-reset) for
 training; brax's own ``brax.envs.wrappers.training.wrap`` also runs the environments unchanged,
@@ -82,7 +82,7 @@ class RMPInEnv(Wrapper):
 
     For an end effector of dimension ``m`` the action has ``m·m + m`` entries: the raw
     metric-root residual ``A_r`` (row-major) and the raw acceleration residual ``a_r``, squashed
-    as ``A_r = √5·tanh(·)`` and ``a_r = tanh(·)`` (ANCHOR_FACTS §4). With the hand-designed
+    as ``A_r = √5·tanh(·)`` and ``a_r = tanh(·)`` (docs/design.md §4.4). With the hand-designed
     target RMP ``(M_h, a_h)`` of the ``residual_rmp`` preset, the learned end-effector leaf is
     ``M = (A_r + chol(M_h))(A_r + chol(M_h))ᵀ``, ``a = a_r + a_h``; it replaces the target leaf
     and is combined with the other hand-designed leaves by RMP². The resulting joint

@@ -1,4 +1,4 @@
-"""XLA settings every CPU entry point needs (DESIGN §8.2).
+"""XLA settings every CPU entry point needs (docs/design.md §5.2).
 
 With jaxlib 0.7.1–0.10.x, XLA:CPU's fusion emitters make MJX kinematics of deep chains extremely
 slow (seconds per step for the Franka); disabling them restores millisecond steps. The flag is read

@@ -51,7 +51,7 @@ def point_obstacle_distances(
 ) -> jax.Array:
     """Surface distances ``‖c − o‖ − (r_c + r_o)`` for every (point, obstacle) pair, ``(P, O)``.
 
-    ``smooth=True`` uses the smoothed norm of the collision RMP (ANCHOR_FACTS §1); ``False``
+    ``smooth=True`` uses the smoothed norm of the collision RMP (docs/design.md §4.1); ``False``
     the exact Euclidean norm (collision detection). ``shape="cylinder"`` measures in the
     xy-plane only (vertical cylinders).
     """

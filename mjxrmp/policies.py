@@ -96,7 +96,7 @@ jax.tree_util.register_pytree_node(PolicyConfig, _flatten, _unflatten)
 
 
 # --------------------------------------------------------------------------------------------
-# Presets reproducing the original configurations (ANCHOR_FACTS §1.1; one documented departure:
+# Presets reproducing the original configurations (docs/design.md §4.1; one documented departure:
 # the 3-link collision metric length scale, see three_link_config)
 # --------------------------------------------------------------------------------------------
 
@@ -115,7 +115,7 @@ def three_link_config(variant: Variant = "hand_designed") -> PolicyConfig:
 
     **One departure from the original values (every 3-link variant):** the collision leaf's
     metric length scale ``σ_e`` (``CollisionParams.metric_std``) is 0.1 m instead of the original
-    0.02 m (ANCHOR_FACTS §1.1: "collision as Franka"); every other value is the original one.
+    0.02 m (docs/design.md §4.1: "collision as Franka"); every other value is the original one.
     Why: the environment clips the commanded joint
     accelerations to ±1 rad/s², so the tip (up to 0.75 m from the base) can brake at only about
     1 m/s². The target attractor drives it at up to ``k_p/k_d ≈ 0.7`` m/s, which needs a
@@ -164,7 +164,7 @@ def franka_config(variant: Variant = "hand_designed") -> PolicyConfig:
     """Franka policy: hand-designed, base under a residual network, or residual-RMP base.
 
     Under a residual the cspace target uses ``k_p 1, k_d 2``, the target
-    ``k_p .5, k_d .5, s_max .5, s_min .5, b 1`` and the damping gain 1 (ANCHOR_FACTS §1.1).
+    ``k_p .5, k_d .5, s_max .5, s_min .5, b 1`` and the damping gain 1 (docs/design.md §4.1).
     """
     _check_variant(variant)
     if variant == "hand_designed":

@@ -1,4 +1,4 @@
-"""Benchmark table (DESIGN §7): RMP² policy evaluations per second, latency and compile times.
+"""Benchmark table (docs/design.md §6): RMP² policy evaluations per second, latency and compile times.
 
 For each robot's hand-designed RMP² policy (``mjxrmp.policies.default_config``):
 

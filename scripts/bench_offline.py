@@ -9,7 +9,7 @@
         --full-steps 1000000 --full-seeds 8 --full-chunk 100000
 
 For each learner (``atac``, ``pspi``, ``mahalo``, ``bc``, ``iql``, ``cql``) at the thesis sizes
-(ANCHOR_FACTS §5: batch 256, 3×256 MLPs):
+(docs/design.md §4.5: batch 256, 3×256 MLPs):
 
 * **steps/s** — a compiled ``run(state, chunk)`` vmapped over ``S`` seeds (``--seeds``), timed
   after a warm-up call; reported per seed-step (``gradient steps/s`` of one seed) and in total;

@@ -573,7 +573,7 @@ def main(argv: list[str] | None = None) -> dict:
     """Run the comparison of the module docstring; returns ``{"settings", "tasks"}`` as written
     to ``metrics.json``. Float32 matrix products run at ``--matmul-precision`` (``highest`` by
     default: on Ampere/Hopper GPUs the backend default is TF32, and with it the same seed's
-    policies behaved differently on a GPU than on a CPU — DESIGN §8)."""
+    policies behaved differently on a GPU than on a CPU — docs/design.md §5)."""
     args = parse_args(argv)
     with jax.default_matmul_precision(args.matmul_precision):
         return _run(args)

@@ -11,7 +11,7 @@ Every requested shape is trained in **one** compiled program: the shapes' demons
 step is ``vmap``-ped over it (one ``lax.scan`` per chunk of ``--log-every`` iterations, which is
 when progress is printed). Shape ``k`` of :data:`mjxrmp.data.lasa.LASA_SHAPES` draws its key from
 ``fold_in(PRNGKey(seed), k)``, so a shape's result does not depend on which others are trained
-with it. Model and optimiser are :class:`agents.lfd.flow_field.LfdConfig`'s defaults (ANCHOR_FACTS §6);
+with it. Model and optimiser are :class:`agents.lfd.flow_field.LfdConfig`'s defaults (docs/design.md §4.6);
 ``--iterations`` overrides the iteration budget (default 5000, early stop after 250 iterations
 without improvement), ``--tiny`` uses :meth:`LfdConfig.tiny` (tests).
 
@@ -298,7 +298,7 @@ def time_epochs(config: LfdConfig, num_epochs: int, seed: int = 0,
 
 def main(argv=None) -> dict:
     """Train the selected shapes, roll out, check convergence, write files; return metrics."""
-    # DESIGN §8.4: GPUs default to TF32 matrix products. Their ~1e-3 relative error breaks the
+    # docs/design.md §5.4: GPUs default to TF32 matrix products. Their ~1e-3 relative error breaks the
     # flow's exact inverse (ψ(ψ⁻¹(y)) ≠ y), so the latent rollout's monotone ‖ψ‖ held on only
     # 2 of 30 shapes on an H100; with full float32 products it holds on all 30.
     jax.config.update("jax_default_matmul_precision", "highest")

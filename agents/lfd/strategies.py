@@ -29,7 +29,7 @@ are part of the policy class during learning too (the joint strategy learns to b
 ``V̇ = −fᵀ(M + εI)⁻¹f ≤ 0`` with ``f`` the right-hand side of (*) (``f = −∇V``); each ``ψ_k`` is a
 diffeomorphism of the control point with ``ψ_k = 0`` only at its goal.
 
-**Strategies** (:data:`STRATEGIES`), each a two-stage fit (ANCHOR_FACTS §6): stage 1 trains the
+**Strategies** (:data:`STRATEGIES`), each a two-stage fit (docs/design.md §4.6): stage 1 trains the
 flows with the latent metrics held at ``I``; stage 2 trains the metrics with the flows frozen.
 Every stage is one ``lax.scan`` of Adam steps (weight decay ``1e-8`` as an L2 term, §5.3.2;
 full batch, or minibatches drawn ``∝ w`` with ``batch_size``), the whole fit one jittable
@@ -40,7 +40,7 @@ and (weighted) samples.
 
 * ``"cspace"`` — configuration-space regression (§5.1 eq 5.2): one leaf on ``x = q − q_g``
   (``J = ∂ψ/∂q`` square), loss ``SmoothL1(π_θ(q) − q̇_demo)`` — a *stable* flow DS in
-  configuration space (ANCHOR_FACTS §6) rather than an unconstrained regressor, so that its
+  configuration space (docs/design.md §4.6) rather than an unconstrained regressor, so that its
   rollouts can be compared with the others'.
 * ``"independent"`` — independent per-subtask learning (§5.1 eq 5.3, §5.2): each control point's
   leaf is fitted on its own, to reproduce that point's demonstrated velocity in its task space,
@@ -151,7 +151,7 @@ def _check_float(value: Any, name: str, allow_zero: bool = False) -> None:
 class StrategyConfig:
     """One strategy's model and training settings (module docstring).
 
-    Defaults are the thesis' (§5.3.2) and ANCHOR_FACTS §6 values: flows of 10 coupling layers with
+    Defaults are the thesis' (§5.3.2) and docs/design.md §4.6 values: flows of 10 coupling layers with
     200 random Fourier features of length-scale 0.45, Cholesky metrics ``(128, 64)``, Adam with
     learning rate ``1e-4`` and weight decay ``1e-8``, ``ε = 0.02``; iteration counts are
     configurable (``flow_iterations`` for stage 1, ``metric_iterations`` for stage 2, which may be
@@ -232,7 +232,7 @@ class StrategyConfig:
     @classmethod
     def reference(cls, strategy: str = "joint", **overrides: Any) -> StrategyConfig:
         """The thesis sizes and rates with the training rules of the LASA reference code
-        (ANCHOR_FACTS §6), which §5.3.2 does not state: gradient-norm clip 0.1, early stop
+        (docs/design.md §4.6), which §5.3.2 does not state: gradient-norm clip 0.1, early stop
         after 250 iterations without a lower loss (the best parameters are kept), per stage."""
         base: dict[str, Any] = dict(max_grad_norm=0.1, patience=250)
         base.update(overrides)
@@ -453,7 +453,7 @@ def _fit(loss: Callable[[Any, jax.Array], jax.Array], params: Any,
          patience: int | None = None) -> tuple[Any, jax.Array]:
     """``iterations`` steps of ``tx`` on ``loss(params, key)`` in one ``lax.scan`` (a fresh key
     per step for minibatches); a step whose loss is not finite leaves the parameters unchanged.
-    With ``patience`` (the LASA reference code's early stop, ANCHOR_FACTS §6) the parameters
+    With ``patience`` (the LASA reference code's early stop, docs/design.md §4.6) the parameters
     freeze once the loss has not improved on its lowest value for ``patience`` steps, and the
     parameters of the lowest loss are returned. Returns the parameters and the loss before
     every step."""
@@ -495,7 +495,7 @@ def _minibatch(samples: Samples, key: jax.Array, batch_size: int | None) -> Samp
 def _two_stage(config: StrategyConfig, params: Any, constants: Any, samples: Samples,
                key: jax.Array) -> tuple[Any, jax.Array, jax.Array]:
     """Stage 1: flows with the metrics at their initial value ``I``; stage 2: metrics with the
-    flows frozen (ANCHOR_FACTS §6)."""
+    flows frozen (docs/design.md §4.6)."""
     def loss(p, k):
         return strategy_loss(config, p, constants, _minibatch(samples, k, config.batch_size))
 
@@ -639,7 +639,7 @@ class Execution(NamedTuple):
 
 def execution_config(obstacle_shape: str = "cylinder") -> policies.PolicyConfig:
     """The hand-designed acceleration-form leaves lifted at execution time (§5.2.3): the Franka
-    collision RMP with its default parameters (ANCHOR_FACTS §1.1). Joint limits are the
+    collision RMP with its default parameters (docs/design.md §4.1). Joint limits are the
     velocity-form leaf of :class:`ExecutionParams` instead."""
     return policies.PolicyConfig(robot="franka", collision=CollisionParams(),
                                  obstacle_shape=obstacle_shape)

@@ -1,4 +1,4 @@
-"""Flax networks for PPO (DESIGN §5.1, ANCHOR_FACTS §4).
+"""Flax networks for PPO (docs/design.md §2.3, docs/design.md §4.4).
 
 * :class:`GaussianPolicy` — MLP mean (hidden sizes and activation configurable, output layer
   initialised with RLlib's ``normc`` scheme at scale 0.1) and a state-independent log standard

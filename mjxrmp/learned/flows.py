@@ -14,13 +14,13 @@ Scale and translation functions (eq 4.5) are either
 * ``net="rff"`` (the thesis, default): ``g(z) = φ(z)ᵀ w`` with ``N`` *fixed* random Fourier
   features ``φ(z) = c·cos(αᵢᵀ z + βᵢ)``, ``αᵢ ~ N(0, l⁻² I)``, ``βᵢ ~ U[0, 2π)``, and a learnable,
   bias-free read-out ``w`` initialised at zero. The thesis writes ``c = √(2/N)``; the original
-  implementation uses ``c = 1``, and its training settings (ANCHOR_FACTS §6: Adam, lr 1e-4) were
+  implementation uses ``c = 1``, and its training settings (docs/design.md §4.6: Adam, lr 1e-4) were
   tuned for that. Both span the same function class (``w ↦ c·w``); ``normalize_features=False``
   (default) is the original's ``c = 1``, ``True`` gives eq 4.5's ``√(2/N)``.
 * ``net="mlp"``: a fully connected network (hidden ``(100, 100)``, ``elu``; the original
   implementation's ``fcnn`` variant) whose last layer (weights and bias) is initialised at zero.
 
-Defaults are the thesis/ANCHOR_FACTS §6 values: ``M = 10`` layers, ``N = 200`` features,
+Defaults are the thesis/docs/design.md §4.6 values: ``M = 10`` layers, ``N = 200`` features,
 length-scale ``l = 0.45``. Every zero-initialised read-out gives ``s ≡ t ≡ 0``, so the flow is
 **exactly the identity at initialisation**. The inverse is exact (up to rounding): the
 conditioning coordinates pass through unchanged, so ``s`` and ``t`` are recomputed from the

@@ -16,12 +16,12 @@ guarantee both for *every* parameter value:
 
 * :class:`CholeskyMetric` — ``G = L Lᵀ + εI``, ``L`` lower-triangular with strictly positive
   diagonal (Fig 4.5): ``x → 128 → 64`` (relu) → a diagonal head and a strictly-lower head, both
-  initialised at zero (ANCHOR_FACTS §6); ``L_ii = |h_i + c| + ε_L`` (the thesis' absolute value,
+  initialised at zero (docs/design.md §4.6); ``L_ii = |h_i + c| + ε_L`` (the thesis' absolute value,
   ``ε_L = 1e-5``) or ``softplus(h_i + c) + ε_L``.
 * :class:`GramMetric` — ``G = Aᵀ A + εI`` (Gram parameterisation), ``A = mat(h) + c I``.
 
   In both, ``c`` is chosen so that ``G = I`` *exactly* at initialisation (``L = A = √(1 − ε) I``).
-  ANCHOR_FACTS §6 writes ``L_ii = |h_i + 1| + 1e-5`` with no ``εI`` term; with ``eps=0`` the
+  docs/design.md §4.6 writes ``L_ii = |h_i + 1| + 1e-5`` with no ``εI`` term; with ``eps=0`` the
   offset here is ``c = 1 − ε_L``, i.e. that form up to ``1e-5`` at initialisation. The extra floor
   ``εI`` makes ``λ_min(G) ≥ ε`` (a triangular ``L`` with diagonal ``≥ ε_L`` alone only gives
   ``G ≻ 0``, without a bound).
@@ -136,7 +136,7 @@ class CholeskyMetric(nn.Module):
     at zero; ``L_ii = |h_i + c| + diag_eps`` (``diagonal="abs"``, the thesis) or
     ``softplus(h_i + c) + diag_eps`` (``"softplus"``), ``L_ij = h_o`` below the diagonal, with
     ``c`` such that ``L_ii = √(1 − eps)`` at ``h = 0``. ``λ_min(G) ≥ eps`` for all parameters.
-    Defaults: hidden ``(128, 64)`` relu, ``diag_eps = 1e-5`` (ANCHOR_FACTS §6), ``eps = 1e-5``.
+    Defaults: hidden ``(128, 64)`` relu, ``diag_eps = 1e-5`` (docs/design.md §4.6), ``eps = 1e-5``.
     """
 
     dim: int
@@ -233,7 +233,7 @@ def quadratic_potential(y: jax.Array) -> jax.Array:
 
 def smooth_norm_potential(y: jax.Array, eps: float = 1e-2) -> jax.Array:
     """``Φ̄(y) = √(‖y‖² + ε²) − ε``: a smoothed ``‖y‖``, whose negative gradient is (nearly) the
-    unit latent velocity ``ẏ = −y/‖y‖`` of the original implementation (ANCHOR_FACTS §6). Its only
+    unit latent velocity ``ẏ = −y/‖y‖`` of the original implementation (docs/design.md §4.6). Its only
     stationary point is the origin."""
     return jnp.sqrt(jnp.sum(y * y, axis=-1) + eps * eps) - eps
 

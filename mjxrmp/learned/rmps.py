@@ -12,7 +12,7 @@ function ``(x (m,), ẋ (m,)) -> RMP(M (m, m), f (m,))`` for **one** subtask in 
       M = (A_r + chol(M_h)) (A_r + chol(M_h))ᵀ,      a = a_r + a_h,
 
   ``chol`` the lower Cholesky factor. Outputs are bounded by ``tanh``: ``A_r = √5·tanh(·)``,
-  ``a_r = tanh(·)`` (DESIGN §3.6, ANCHOR_FACTS §4). The thesis calls this ``M`` positive
+  ``a_r = tanh(·)`` (docs/design.md §2.1, docs/design.md §4.4). The thesis calls this ``M`` positive
   *semi*-definite — it is singular where ``A_r + chol(M_h)`` is (e.g. ``A_r = −chol(M_h)``,
   reachable whenever ``chol(M_h)``'s entries are within ``√5``). :func:`residual_rmp` takes an
   ``eps ≥ 0`` (default 0, the thesis) and returns ``M + εI``, positive definite with

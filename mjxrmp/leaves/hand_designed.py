@@ -1,4 +1,4 @@
-"""Hand-designed leaf RMPs of the RMPflow / RMP² family (ANCHOR_FACTS §1, thesis §3.2.1).
+"""Hand-designed leaf RMPs of the RMPflow / RMP² family (docs/design.md §4.1, thesis §3.2.1).
 
 Every leaf acts on a *family* of subtasks: ``x`` and ``xd`` have shape ``(n, m)`` and the result is
 an :class:`~mjxrmp.core.rmp.RMP` in natural form with ``M (n, m, m)`` and ``f (n, m)``. Parameters are
@@ -59,7 +59,7 @@ class TargetParams:
 
 def target_rmp(x: jax.Array, xd: jax.Array, goal: jax.Array, p: TargetParams) -> RMP:
     """Target attractor: ``a = k_p δ/(‖δ‖+ε) − k_d ẋ`` with ``δ = g − x`` and the directional,
-    proximity-boosted metric ``M = boost·(α s_max I + (1−α) s_min δ̂δ̂ᵀ)`` (ANCHOR_FACTS §1).
+    proximity-boosted metric ``M = boost·(α s_max I + (1−α) s_min δ̂δ̂ᵀ)`` (docs/design.md §4.1).
 
     ``goal`` broadcasts against ``x`` (shape ``(m,)`` or ``(n, m)``).
     """
@@ -102,7 +102,7 @@ class CollisionParams:
 
 
 def collision_rmp(x: jax.Array, xd: jax.Array, p: CollisionParams) -> RMP:
-    """Collision avoidance on distances ``x (n, 1)`` (ANCHOR_FACTS §1).
+    """Collision avoidance on distances ``x (n, 1)`` (docs/design.md §4.1).
 
     With ``s = max(x − margin, 0)``, ``s_v = σ(ẋ/ℓ_v)`` and the gate
     ``(s/r)² − 2s/r + 1`` for ``s ≤ r`` (else 0):

@@ -1,6 +1,6 @@
 """Trajectory-comparison metrics for learning from demonstrations (thesis chapters 4–5).
 
-One shared implementation of the metrics DESIGN §5.3 and ANCHOR_FACTS §6 list for the LASA and
+One shared implementation of the metrics docs/design.md §2.3 and docs/design.md §4.6 list for the LASA and
 Franka experiments: RMSE, true dynamic-time-warping (DTW) distance and DTW per warping-path step,
 discrete Fréchet distance, swept error area (2-D), final-point error, plus the thesis' own mean
 position error (§5.3.2). The thesis gives no equations for these metrics; where a choice was
@@ -167,7 +167,7 @@ def _common_length(a, b, resample_fn):
 
 def rmse(a, b) -> float:
     """Root-mean-square Euclidean error ``sqrt(mean_t ‖a_t − b_t‖²)`` between time-aligned
-    trajectories (ANCHOR_FACTS §6 / DESIGN §5.3 "RMSE").
+    trajectories (docs/design.md §4.6 / docs/design.md §2.3 "RMSE").
 
     The error at each time is the Euclidean norm over the ``d`` coordinates (a parallel shift by
     ``δ`` gives exactly ``δ``), averaged over samples, not over samples × coordinates. If
@@ -191,7 +191,7 @@ def mean_error(a, b) -> float:
 
 
 def final_point_error(a, b) -> float:
-    """Euclidean distance between the last samples, ``‖a_T − b_S‖`` (DESIGN §5.3).
+    """Euclidean distance between the last samples, ``‖a_T − b_S‖`` (docs/design.md §2.3).
 
     With ``b`` a demonstration (LASA demonstrations end at the goal) this is the reproduction's
     distance to the goal when it stops.
@@ -255,7 +255,7 @@ def _dp_numpy(a, b, kind: str):
 
 
 def dtw(a, b) -> float:
-    """True dynamic-time-warping distance with Euclidean point cost (ANCHOR_FACTS §6).
+    """True dynamic-time-warping distance with Euclidean point cost (docs/design.md §4.6).
 
     ``D(i, j) = ‖a_i − b_j‖ + min(D(i−1, j−1), D(i−1, j), D(i, j−1))``, ``D(0, 0) = ‖a_0 − b_0‖``,
     returns ``D(T−1, S−1)``: the minimum, over monotone warping paths from ``(0, 0)`` to
@@ -293,7 +293,7 @@ def dtw_path(a, b) -> tuple[float, np.ndarray]:
 def dtw_normalized(a, b) -> float:
     """DTW distance divided by the length of its warping path, ``D(T−1, S−1) / K``.
 
-    ANCHOR_FACTS §6 lists "DTW distance divided by length" for LASA; the length taken here is the
+    docs/design.md §4.6 lists "DTW distance divided by length" for LASA; the length taken here is the
     number ``K`` of matched pairs on the optimal warping path (ties broken as in
     :func:`dtw_path`), which makes the result the mean matched-pair distance, in the units of
     the trajectories and comparable with :func:`rmse` and :func:`mean_error`. For equal lengths
@@ -310,7 +310,7 @@ def frechet(a, b) -> float:
 
     ``F(i, j) = max(‖a_i − b_j‖, min(F(i−1, j−1), F(i−1, j), F(i, j−1)))``, returns
     ``F(T−1, S−1)``: the smallest, over monotone couplings of the two sample sequences, of the
-    largest matched-pair distance (ANCHOR_FACTS §6 "Fréchet distance"). It is the discrete
+    largest matched-pair distance (docs/design.md §4.6 "Fréchet distance"). It is the discrete
     version on the samples, an upper bound on the continuous Fréchet distance of the polylines.
     """
     _check_pair(a, b)
@@ -424,7 +424,7 @@ def _quad_areas(p0, p1, p2, p3, xp):
 
 
 def swept_error_area(a, b) -> float:
-    """Swept error area between two 2-D trajectories (ANCHOR_FACTS §6; LASA benchmark metric).
+    """Swept error area between two 2-D trajectories (docs/design.md §4.6; LASA benchmark metric).
 
     Computes ``Σ_{t=0}^{n−2} area(Q_t)`` with ``Q_t`` the quadrilateral
     ``a_t → a_{t+1} → b_{t+1} → b_t`` joining corresponding samples of the two curves at

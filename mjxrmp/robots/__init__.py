@@ -1,4 +1,4 @@
-"""Robots: the :class:`Robot` description, the planar 3-link and the Franka Panda (DESIGN §3.5)."""
+"""Robots: the :class:`Robot` description, the planar 3-link and the Franka Panda (docs/design.md §4.2)."""
 
 from __future__ import annotations
 

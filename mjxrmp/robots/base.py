@@ -10,7 +10,7 @@ import jax
 
 @dataclasses.dataclass(frozen=True)
 class Robot:
-    """Kinematic facts of a robot and its pure-JAX forward kinematics (DESIGN §3.5).
+    """Kinematic facts of a robot and its pure-JAX forward kinematics (docs/design.md §4.2).
 
     ``control_points(q) -> (n_cp, dim)`` and ``end_effector(q) -> (dim,)`` are pure functions
     of a single configuration ``q (dof,)``; batch them with ``jax.vmap``. ``dim`` is the

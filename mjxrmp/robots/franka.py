@@ -1,4 +1,4 @@
-"""Franka Emika Panda (ANCHOR_FACTS §2, §1.1): kinematics and control points in pure JAX.
+"""Franka Emika Panda (docs/design.md §4.2, §1.1): kinematics and control points in pure JAX.
 
 The chain uses the manufacturer's modified (Craig) Denavit–Hartenberg parameters: the frame of
 joint ``i`` relative to the previous one is ``RotX(α) · TransX(a) · RotZ(q_i) · TransZ(d)``,

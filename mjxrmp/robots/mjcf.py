@@ -2,7 +2,7 @@
 
 Pure string building — this module does not import MuJoCo. Bodies and hinge joints are placed so
 that MuJoCo's forward kinematics equals :mod:`mjxrmp.robots.three_link` and
-:mod:`mjxrmp.robots.franka` exactly (DESIGN §3.5; ``tests/mjxrmp/test_robots.py`` checks it with MJX):
+:mod:`mjxrmp.robots.franka` exactly (docs/design.md §4.2; ``tests/mjxrmp/test_robots.py`` checks it with MJX):
 
 * **3-link:** body ``link{i}`` at height ``LINK_HEIGHTS[i-1]`` with a hinge ``joint{i}`` about z at
   its origin; each link is a capsule of radius 0.025 and length 0.25 along the body x-axis, mass

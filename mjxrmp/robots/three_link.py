@@ -1,4 +1,4 @@
-"""Planar 3-link robot (thesis §6.2, ANCHOR_FACTS §2): kinematics and control points.
+"""Planar 3-link robot (thesis §6.2, docs/design.md §4.2): kinematics and control points.
 
 Three revolute joints about z, links of 0.25 m (reach 0.75 m), velocity limit 1 rad/s, no
 position limits. The links sit at different heights (0.075, 0.15, 0.225 m) so they cannot

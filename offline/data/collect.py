@@ -1,4 +1,4 @@
-"""Offline data collection inside one compiled graph (thesis chapters 7–8, DESIGN §6).
+"""Offline data collection inside one compiled graph (thesis chapters 7–8, docs/design.md §2.4).
 
 :func:`collect` rolls out a behaviour policy on a reaching environment (:func:`envs.make` name)
 for ``num_episodes`` episodes: ``jax.jit(jax.vmap(episode))`` with a ``lax.scan`` over the

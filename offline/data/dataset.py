@@ -1,5 +1,5 @@
 """Offline datasets: a pytree of transitions, versioned/checksummed files, and the operations the
-offline learners need (thesis chapters 7–8, DESIGN §6).
+offline learners need (thesis chapters 7–8, docs/design.md §2.4).
 
 A :class:`Dataset` holds ``N`` transitions as flat arrays
 

@@ -1,4 +1,4 @@
-"""Offline PLfO scenarios (thesis §7.2 and §7.4, Table 7.2; ANCHOR_FACTS §5): a dynamics
+"""Offline PLfO scenarios (thesis §7.2 and §7.4, Table 7.2; docs/design.md §4.5): a dynamics
 dataset ``D_A = {(s, a, s')}`` and a reward dataset ``D_R = {(s, r, s')}`` built from a
 mixed-quality dataset ``D_X`` (e.g. :func:`offline.data.collect.collect_recipe` ``"mixed"``) and
 expert trajectories ``D_E`` (recipe ``"expert"``).
@@ -31,9 +31,9 @@ Sources in the thesis:
 * §7.2.2 "Offline IL" / "Offline ILfO": expert demonstrations act as reward data labelled with
   the **maximum reward** ``R_max`` (``D_R = {(s_E, R_max, s'_E)}``); for IL the dynamics data
   contains the expert demonstrations *and* ``D_X``, for ILfO only ``D_X``. The same holds for
-  RL-expert (expert actions appended to the dynamics data, ANCHOR_FACTS §5).
+  RL-expert (expert actions appended to the dynamics data, docs/design.md §4.5).
 * ``R_max`` defaults to the environment's maximum per-step reward recorded by the collector
-  (``metadata["reward_range"][1]``, 1 for the reaching tasks — ANCHOR_FACTS §5: "labelled with
+  (``metadata["reward_range"][1]``, 1 for the reaching tasks — docs/design.md §4.5: "labelled with
   the maximum reward 1").
 * RL-sample's labelled fraction: §7.4.2 (Meta-World, the setting closest to these reaching
   tasks: noisy scripted policies) labels 50 % of the trajectories — the default
@@ -45,7 +45,7 @@ and diagnostics read them. A PLfO learner (MAHALO, RP, AP, UDS) must not: its me
 ``"plfo_role": "dynamics"`` and ``"rewards_visible": false``.
 
 **Terminals.** ``keep_terminals=False`` turns every terminal into a timeout in both datasets
-(the option of ANCHOR_FACTS §5 that treats collisions as non-absorbing; report both settings).
+(the option of docs/design.md §4.5 that treats collisions as non-absorbing; report both settings).
 
 **Episode ids.** Reward-data episode ids are those the episodes have in
 ``offline.data.dataset.concatenate(D_X, D_E)`` (``D_X``'s ``0 … K−1``, then ``D_E``'s ``K …``), so an id

@@ -1,5 +1,5 @@
 """Policy evaluation inside the compiled graph for the offline learners (thesis §7.4, §8.4;
-DESIGN §6; issue 6 item 5).
+docs/design.md §2.4; issue 6 item 5).
 
 :func:`make_evaluator` builds an :class:`Evaluator` for one reaching environment
 (:func:`envs.make` name) and a number of episodes. ``evaluator.evaluate(act, params, key)``
@@ -10,7 +10,7 @@ once it ends, so returns are exact) and returns scalars:
 
 * ``mean_return`` ``J`` — mean undiscounted return;
 * ``normalized_score`` — ``100·(J − J_random)/(J_expert − J_random)``, the D4RL-style score the
-  thesis reports (Tables 7.3, Figs 8.4 and 8.7; ANCHOR_FACTS §5: "expert 100, random 0"), with
+  thesis reports (Tables 7.3, Figs 8.4 and 8.7; docs/design.md §4.5: "expert 100, random 0"), with
   ``J_random`` the return of uniformly random actions in the action box and ``J_expert`` that of
   the hand-designed RMP² expert (:func:`envs.evaluate.hand_designed_policy`);
 * ``safe_pct`` (episodes without collision or non-finite state), ``success_pct`` (safe and the

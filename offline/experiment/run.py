@@ -23,7 +23,7 @@ CQL        scenario they behave as Oracle does (true rewards of ``D_A``)
 ==========  ==============================================================================
 
 **Budgets.** ATAC's published schedule is 1 M steps with a 100 k-step BC warm start and an actor
-rate of 5e-7 (ANCHOR_FACTS §5). :func:`atac_config` shortens it to ``steps`` with the warm start
+rate of 5e-7 (docs/design.md §4.5). :func:`atac_config` shortens it to ``steps`` with the warm start
 at the same 10 % (``Budget.warmstart``; the 7-DoF Franka needs more, BENCHMARKS) and every rate as
 published (``Budget.actor_rate="published"``, the default):
 the slow actor then moves ``steps / 1e6`` as far as in a full run, on critics trained as long
@@ -78,7 +78,7 @@ NEEDS_SHARED = ("UDS", "ATAC")
 #: Learners whose run reads only the dynamics data (with its true rewards): one run serves every
 #: scenario of :func:`offline.data.scenarios.same_dynamics`.
 DYNAMICS_ONLY = ("Oracle",)
-#: ATAC's published length and actor rate (ANCHOR_FACTS §5).
+#: ATAC's published length and actor rate (docs/design.md §4.5).
 REFERENCE_STEPS = 1_000_000
 REFERENCE_ACTOR_LR = 5e-7
 #: Fraction of the steps in ATAC's BC warm start (published: 100 k of 1 M).

@@ -1,5 +1,5 @@
 """ATAC and PSPI: adversarially trained actor critic (thesis §7.3.3, Algorithm 3 without the
-reward player; ANCHOR_FACTS §5), and the shared core that MAHALO and the PLfO baselines reuse.
+reward player; docs/design.md §4.5), and the shared core that MAHALO and the PLfO baselines reuse.
 
 The critic ensemble ``f_1 … f_K`` (K = 2) and the tanh-Gaussian actor ``π`` play the
 Stackelberg game of eq 7.1 with the observed reward in place of ``g``:
@@ -9,7 +9,7 @@ Stackelberg game of eq 7.1 with the observed reward in place of ``g``:
   backup ``y̅ = r + γ(1 − d)·min_j f̄_j(s', a')`` (no gradient) and the residual backup
   ``y_i = r + γ(1 − d)·f_i(s', a')`` (gradient through ``f_i(s', a')`` too, the residual
   algorithm), the *same* ``a' ~ π(·|s')`` in both. ``d`` is the terminal flag (timeouts
-  bootstrap). With ``clip_v`` both backups are clipped to ``[V_min, V_max]`` (ANCHOR_FACTS §5)
+  bootstrap). With ``clip_v`` both backups are clipped to ``[V_min, V_max]`` (docs/design.md §4.5)
   with a straight-through gradient.
 * **Pessimism term** — eq 7.2 on a minibatch: relative (ATAC)
   ``L(π, f_i) = mean f_i(s, a_π) − f_i(s, a)``, or absolute (PSPI) ``mean f_i(s, a_π)``, with
@@ -72,10 +72,10 @@ PESSIMISM = ("relative", "absolute")
 
 @dataclasses.dataclass(frozen=True)
 class ATACConfig:
-    """ATAC / PSPI hyperparameters (defaults: ANCHOR_FACTS §5, the thesis' ATAC settings).
+    """ATAC / PSPI hyperparameters (defaults: docs/design.md §4.5, the thesis' ATAC settings).
 
     ``num_steps`` counts all gradient steps, the ``warmstart_steps`` of BC warm start
-    included. ``bc_lr`` is the actor's rate during warm start (the fast rate: ANCHOR_FACTS §5
+    included. ``bc_lr`` is the actor's rate during warm start (the fast rate: docs/design.md §4.5
     says the actor optimiser is *rebuilt* at the slow rate at the switch). ``target_entropy``
     ``None`` means ``−dim(A)``. ``dqra_weight`` is ``w`` of eq 7.11 (weight of the
     target-network term; ``1 − w`` weighs the residual term). ``pessimism="relative"`` is ATAC,
@@ -154,7 +154,7 @@ def _check_positive(name: str, value: Any) -> None:
 
 
 def combine(loss: jax.Array, reg: jax.Array, w: jax.Array | float) -> jax.Array:
-    """``loss/w + reg`` if ``w > 1`` else ``loss + w·reg`` (ANCHOR_FACTS §5; eq 7.1's weighted
+    """``loss/w + reg`` if ``w > 1`` else ``loss + w·reg`` (docs/design.md §4.5; eq 7.1's weighted
     sum ``loss + w·reg`` rescaled by ``1/w`` for large ``w``). ``w`` may be traced; the unused
     branch never divides by a ``w ≤ 1``, so gradients stay finite at ``w = 0``."""
     w = jnp.asarray(w)
@@ -164,7 +164,7 @@ def combine(loss: jax.Array, reg: jax.Array, w: jax.Array | float) -> jax.Array:
 
 def value_bounds(reward_min: float, reward_max: float, discount: float) -> tuple[float, float]:
     """``(V_min, V_max) = (min(−1/(1−γ), 2 r_min/(1−γ)), max(1/(1−γ), 2 r_max/(1−γ)))``
-    (ANCHOR_FACTS §5, the ``clip_v`` option)."""
+    (docs/design.md §4.5, the ``clip_v`` option)."""
     h = 1.0 / (1.0 - discount)
     return min(-h, 2.0 * reward_min * h), max(h, 2.0 * reward_max * h)
 
@@ -432,7 +432,7 @@ def make_train(dynamics: odata.Dataset, config: ATACConfig, *,
                reward_fn: Callable[[odata.Dataset], jax.Array] | None = None,
                normalizer: ObservationNormalizer | None = None) -> Trainer:
     """ATAC (``pessimism="relative"``) or PSPI (``"absolute"``) on ``dynamics`` (thesis §7.3.3,
-    ANCHOR_FACTS §5).
+    docs/design.md §4.5).
 
     The Bellman backups use ``dynamics.rewards`` or, when given, ``reward_fn(batch) -> (B,)``
     (a fixed reward model applied to each minibatch). Dynamics data of a PLfO scenario (its

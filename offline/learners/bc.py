@@ -1,13 +1,13 @@
 """Behaviour cloning (BC) and behaviour cloning from observation (BCO), the imitation
 baselines of thesis §7.4 ("Baselines": BC for IL, BCO [Torabi et al., 2018] for ILfO; Tables
-7.3-7.4) and §8.4 (the BC reference policy of Figs 8.4 and 8.7); ANCHOR_FACTS §5.
+7.3-7.4) and §8.4 (the BC reference policy of Figs 8.4 and 8.7); docs/design.md §4.5.
 
 **BC** maximises the tanh-Gaussian likelihood of the dataset actions,
 
     L(θ) = −E_{(s, a)∼D} log π_θ(a / action_limit | s),
 
 with the actor of the offline learners (:class:`offline.learners.tanh_gaussian.TanhGaussianPolicy`, 3×256
-ReLU, ANCHOR_FACTS §5) and Adam. ``BCConfig.data`` chooses ``D``: ``"all"`` (the dynamics data)
+ReLU, docs/design.md §4.5) and Adam. ``BCConfig.data`` chooses ``D``: ``"all"`` (the dynamics data)
 or ``"reward_episodes"`` — only the dynamics episodes that also appear in the reward data (same
 episode ids, :mod:`offline.data.scenarios`), i.e. the expert demonstrations of IL / RL-expert.
 
@@ -26,7 +26,7 @@ observations.
 
 ``beta`` (the learner API's trade-off coefficient) is accepted and ignored: BC has none.
 Defaults (our choice; the thesis gives none for BC): Adam lr 3e-4, batch 256, 100k steps (the
-length of ATAC's BC warm start, ANCHOR_FACTS §5).
+length of ATAC's BC warm start, docs/design.md §4.5).
 """
 
 from __future__ import annotations

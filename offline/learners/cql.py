@@ -24,7 +24,7 @@ Per gradient step, on one minibatch ``(s, a, r, s', d)`` (actions divided by the
 All losses are evaluated with the parameters before the step, then every network takes one Adam
 step. Defaults: the CQL(H) MuJoCo settings of the authors' code (``min_q_weight`` 5, 10 sampled
 actions, temperature 1, critic lr 3e-4, policy lr 1e-4 — also used for ``log α`` — γ 0.99, τ 5e-3,
-batch 256, no Lagrange variant) with 3×256 ReLU networks (ANCHOR_FACTS §5 sizes) and the
+batch 256, no Lagrange variant) with 3×256 ReLU networks (docs/design.md §4.5 sizes) and the
 tanh-Gaussian actor of the offline learners.
 
 ``beta`` of the learner API is the conservative weight α (``CQLConfig.min_q_weight`` when None),

@@ -1,9 +1,9 @@
 """Inverse-dynamics model ``a ≈ f(s, s')`` for learning from observations (thesis §7.4
-"Baselines": BCO [Torabi et al., 2018] and action prediction AP; ANCHOR_FACTS §5).
+"Baselines": BCO [Torabi et al., 2018] and action prediction AP; docs/design.md §4.5).
 
 **Model.** ``f(s, s') = action_limit · tanh(MLP([s, s' − s]))`` — an MLP (3×256 ReLU by
 default, :class:`agents.ppo.networks.MLP`) on the state and the state change, bounded by ``tanh`` to
-the action box. Feeding ``s' − s`` rather than ``s'`` is our choice (the thesis and ANCHOR_FACTS
+the action box. Feeding ``s' − s`` rather than ``s'`` is our choice (the thesis and the original implementation
 give no architecture): for control-affine dynamics such as ``s' = s + B a`` the target is then a
 function of the input's second half alone. It is trained by least squares on the dynamics data's
 actions divided by the action limit (so targets lie in ``[−1, 1]``), in one ``lax.scan`` of
@@ -56,7 +56,7 @@ from offline.learners.base import (
 @dataclasses.dataclass(frozen=True)
 class InverseDynamicsConfig:
     """Inverse-dynamics regression (our defaults; the thesis gives none): 3×256 ReLU, Adam
-    lr 3e-4, batch 256, 100k steps (as long as ATAC's BC warm start, ANCHOR_FACTS §5);
+    lr 3e-4, batch 256, 100k steps (as long as ATAC's BC warm start, docs/design.md §4.5);
     ``normalize_observations`` standardises the states (module docstring; default off)."""
 
     hidden_sizes: tuple[int, ...] = (256, 256, 256)

@@ -16,7 +16,7 @@ the action limit), in the order of the authors' implementation:
 Defaults are the paper's D4RL locomotion settings (its appendix B and the authors'
 ``configs/mujoco_config.py``): expectile τ = 0.7, inverse temperature β = 3.0, weights clipped
 at 100, γ = 0.99, Adam lr 3e-4 for all three networks, batch 256, τ_p = 5e-3, 1M steps; networks
-3×256 ReLU here (ANCHOR_FACTS §5 sizes; the paper uses 2×256). Not reproduced: the paper's
+3×256 ReLU here (docs/design.md §4.5 sizes; the paper uses 2×256). Not reproduced: the paper's
 cosine decay of the actor learning rate and its locomotion reward rescaling by
 ``1000/(max return − min return)`` (rewards are used as given). The actor is the tanh-Gaussian of
 the other offline learners (:class:`offline.learners.tanh_gaussian.TanhGaussianPolicy`).

@@ -1,4 +1,4 @@
-"""MAHALO realised by ATAC (thesis §7.3, Algorithm 3; ANCHOR_FACTS §5).
+"""MAHALO realised by ATAC (thesis §7.3, Algorithm 3; docs/design.md §4.5).
 
 The ATAC core of :mod:`offline.learners.atac` with a **reward player**: a reward network
 ``g(s, s', terminal)`` (MLP, 3×256 ReLU, no action input) replaces the observed reward in the
@@ -42,7 +42,7 @@ from offline.learners import atac
 from offline.learners.base import ObservationNormalizer, Trainer, observation_normalizer
 from offline.learners.networks import StateNet
 
-#: Default weight of the reward-data loss relative to β (ANCHOR_FACTS §5: α = 1e5·β).
+#: Default weight of the reward-data loss relative to β (docs/design.md §4.5: α = 1e5·β).
 REWARD_WEIGHT_PER_BETA = 1e5
 
 

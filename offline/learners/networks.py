@@ -1,4 +1,4 @@
-"""Networks and parameter utilities shared by the offline learners (thesis ch. 7, ANCHOR_FACTS §5).
+"""Networks and parameter utilities shared by the offline learners (thesis ch. 7, docs/design.md §4.5).
 
 * :class:`QEnsemble` — ``num_critics`` independent Q-networks ``Q_i(s, a)`` (MLPs, 3×256 ReLU by
   default) evaluated in one call through ``nn.vmap``: ``__call__(obs, act) -> (..., num_critics)``.
@@ -21,7 +21,7 @@ import jax.numpy as jnp
 
 from agents.ppo.networks import MLP
 
-#: ATAC's bound on each critic weight matrix's Frobenius norm (ANCHOR_FACTS §5).
+#: ATAC's bound on each critic weight matrix's Frobenius norm (docs/design.md §4.5).
 FROBENIUS_BOUND = 100.0
 
 

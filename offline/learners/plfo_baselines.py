@@ -1,4 +1,4 @@
-"""Reward-based PLfO baselines of thesis §7.4 ("Baselines"; ANCHOR_FACTS §5), all on the ATAC
+"""Reward-based PLfO baselines of thesis §7.4 ("Baselines"; docs/design.md §4.5), all on the ATAC
 core of :mod:`offline.learners.atac`:
 
 * **RP** (reward prediction, :func:`make_train_rp`) — a reward network ``g(s, s', terminal)``

@@ -5,7 +5,7 @@ Every offline learner (ATAC, PSPI, MAHALO, RP, AP, UDS, Oracle, BC, BCO, IQL, CQ
 ``actor`` setting, one of :data:`ACTORS`:
 
 * ``"mlp"`` (default) — :class:`offline.learners.tanh_gaussian.TanhGaussianPolicy`: ``a = tanh(u)``,
-  ``u ~ N(μ(s), σ(s)²)`` with ``(μ, log σ)`` from a 3×256 MLP (ANCHOR_FACTS §5).
+  ``u ~ N(μ(s), σ(s)²)`` with ``(μ, log σ)`` from a 3×256 MLP (docs/design.md §4.5).
 * ``"nn_residual"`` — :class:`ResidualTanhGaussianPolicy`: the same MLP's mean is added, before
   the squashing, to the pre-tanh image of a hand-designed RMP² policy,
 

@@ -1,5 +1,5 @@
 """Tanh-squashed diagonal Gaussian policy for the offline actors (ATAC / MAHALO, thesis §7.3.3,
-ANCHOR_FACTS §5: "a tanh-Gaussian actor, MLPs 3×256 ReLU").
+docs/design.md §4.5: "a tanh-Gaussian actor, MLPs 3×256 ReLU").
 
 An action is ``a = tanh(u)`` with ``u ~ N(μ(s), diag σ(s)²)``, so actions lie in ``(−1, 1)^A``.
 By the change of variables ``u = atanh(a)`` the density of ``a`` is
@@ -21,7 +21,7 @@ which is finite for every ``u`` (the naive ``log(1 − tanh(u)²)`` is ``−inf`
   form).
 * :class:`TanhGaussianPolicy` — flax module, ``policy.apply(params, obs) -> TanhGaussian``: an
   MLP (:class:`agents.ppo.networks.MLP`, 3×256 ReLU by default) outputs ``μ`` and ``log σ``; the
-  log-std is clipped to ``[log_std_min, log_std_max]`` (default ``[−5, 2]``; ANCHOR_FACTS §5
+  log-std is clipped to ``[log_std_min, log_std_max]`` (default ``[−5, 2]``; docs/design.md §4.5
   gives no range for the thesis' actor).
 
 ``log_prob`` of given actions inverts the squashing: ``u = atanh(clip(a, −1 + ε, 1 − ε))`` with
@@ -44,7 +44,7 @@ import jax.numpy as jnp
 
 from agents.ppo.networks import MLP
 
-#: Default log-std range (ANCHOR_FACTS §5 gives none for the thesis' actor).
+#: Default log-std range (docs/design.md §4.5 gives none for the thesis' actor).
 LOG_STD_MIN = -5.0
 LOG_STD_MAX = 2.0
 #: Default clip of given actions away from ±1 in :meth:`TanhGaussian.log_prob`.

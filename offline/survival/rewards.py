@@ -1,11 +1,11 @@
 """Chapter-8 data: wrong rewards, terminal handling, length bias and the positive-data-bias
 estimate (thesis §8.3 "Why offline RL can learn right behaviours from wrong rewards", §8.4.1;
-ANCHOR_FACTS §5).
+docs/design.md §4.5).
 
 * **Wrong rewards** (§8.4.1): the true reward (``"original"``), the zero reward, i.i.d.
   ``U[0, 1]`` rewards and the negated reward — :data:`REWARD_VARIANTS`, applied with
   :func:`offline.data.dataset.relabel_rewards`.
-* **Terminal handling** (ANCHOR_FACTS §5, "report both settings"): ``"keep"`` the collision
+* **Terminal handling** (docs/design.md §4.5, "report both settings"): ``"keep"`` the collision
   terminals (absorbing, ``d = 1`` in the Bellman target) or ``"remove"`` them
   (:func:`offline.data.scenarios.terminals_as_timeouts`: the learner bootstraps through them) —
   :data:`TERMINAL_MODES`.
@@ -36,7 +36,7 @@ ANCHOR_FACTS §5).
   promotes the agent to reach the goal, which is a terminal state, as fast as possible"; §8.4.1:
   under the random and the negated reward "reward for each step is non-negative"):
   :func:`goal_oriented` shifts the environment's reward by its maximum, ``r − r_max ≤ 0``. The
-  reaching reward itself is positive near the goal (ANCHOR_FACTS §3), so its plain negation
+  reaching reward itself is positive near the goal (docs/design.md §4.3), so its plain negation
   costs the agent for approaching the goal; after the shift the negated reward is
   ``r_max − r ≥ 0``, the wrong reward the thesis's goal-oriented experiments use. Zero and
   random rewards do not depend on the form (:data:`FORM_DEPENDENT` names those that do).
@@ -311,7 +311,7 @@ def goal_oriented(dataset: odata.Dataset, reward_max: float | None = None) -> od
 
 
 def positive_data_bias(scores: Mapping[str, float], *, optimal: float = 100.0) -> float:
-    """The empirical positive-data-bias estimate of thesis eq 8.3 (Fig 8.6, ANCHOR_FACTS §5):
+    """The empirical positive-data-bias estimate of thesis eq 8.3 (Fig 8.6, docs/design.md §4.5):
 
     ``Ĵ* / max(Ĵ* − min(J_zero, J_random, J_negated), 0)``
 

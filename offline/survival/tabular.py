@@ -1,5 +1,5 @@
 """Survival instinct on a tabular grid world: PEVI vs behaviour cloning with wrong rewards
-(thesis §8.3.1, Fig. 8.2; §8.3.2 Proposition 8.3.1; §8.3.3 length bias; DESIGN §6).
+(thesis §8.3.1, Fig. 8.2; §8.3.2 Proposition 8.3.1; §8.3.3 length bias; docs/design.md §2.4).
 
 **The world** (:class:`GridWorld`) is a deterministic grid given as text rows: ``S`` start,
 ``K`` key, ``L`` lava, ``#`` wall, ``.`` free. Four actions (up, right, down, left); moving into

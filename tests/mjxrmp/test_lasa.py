@@ -1,4 +1,4 @@
-"""LASA loader (mjxrmp.data.lasa): the 30 shapes, shapes/dtypes, ANCHOR_FACTS §6 preprocessing."""
+"""LASA loader (mjxrmp.data.lasa): the 30 shapes, shapes/dtypes, docs/design.md §4.6 preprocessing."""
 
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ def test_shapes_and_dtypes(shapes):
         assert (s.num_demos, s.horizon) == (7, 235)
         assert np.all(np.isfinite(s.demos))
         assert isinstance(s.dt, float) and s.dt in (0.01, 0.02, 0.03)
-    # "dt ≈ 0.02 s" on average (ANCHOR_FACTS §6).
+    # "dt ≈ 0.02 s" on average (docs/design.md §4.6).
     assert np.mean([s.dt for s in shapes.values()]) == pytest.approx(0.02, abs=0.005)
 
 

@@ -72,7 +72,7 @@ def test_joint_space_metrics_symmetric_psd(x, xd):
 
 
 # ---------------------------------------------------------------------------------------------
-# Formulas written out in NumPy scalars (ANCHOR_FACTS §1) as the independent reference.
+# Formulas written out in NumPy scalars (docs/design.md §4.1) as the independent reference.
 # ---------------------------------------------------------------------------------------------
 
 

@@ -1,4 +1,4 @@
-"""Robot kinematics (DESIGN §3.5): Franka DH chain, planar 3-link, and their MJCF/MJX twins.
+"""Robot kinematics (docs/design.md §4.2): Franka DH chain, planar 3-link, and their MJCF/MJX twins.
 
 The Franka chain is checked against an independent float64 NumPy formulation that composes 4×4
 homogeneous matrices ``RotX(α) · TransX(a) · RotZ(q) · TransZ(d)`` literally; MJX kinematics of

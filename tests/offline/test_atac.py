@@ -1,4 +1,4 @@
-"""ATAC / PSPI (offline/learners/atac.py; thesis §7.3.3, eqs 7.2 and 7.11, ANCHOR_FACTS §5).
+"""ATAC / PSPI (offline/learners/atac.py; thesis §7.3.3, eqs 7.2 and 7.11, docs/design.md §4.5).
 
 * loss terms against float64 NumPy references on a hand-made batch;
 * relative pessimism on a 3-state MDP whose values are known in closed form: the critic's
