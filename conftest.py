@@ -1,13 +1,13 @@
 """Pytest configuration shared by the whole suite.
 
-Sets the XLA:CPU flag MJX needs (docs/design.md §5.2, only where the installed jaxlib knows it) and pins
-JAX to the CPU before JAX initialises, so the suite behaves the same on a laptop, in CI and on a
-GPU host.
+Sets the XLA:CPU flag MJX needs (docs/design.md §5.2, only where the installed jaxlib knows it)
+and pins JAX to the CPU before JAX initialises, so the suite behaves the same on a laptop, in CI
+and on a GPU host.
 
 The suite is dominated by compilation (hundreds of small programs, each run briefly), so it also
 turns XLA's backend (LLVM) optimisation off: compiles get about twice as fast, the compiled code
-somewhat slower; measured on 2 cores, ``tests/envs/test_eval.py`` + ``tests/agents/test_agent_policies.py``
-went from 184 s to 109 s. The same HLO is compiled; results can differ only by rounding.
+somewhat slower; measured on 2 cores, the evaluation and policy-class tests went from 184 s to
+109 s. The same HLO is compiled; results can differ only by rounding.
 """
 
 import os

@@ -1,70 +1,30 @@
-"""MJX reaching environments with the brax ``Env`` API (docs/design.md §2.2).
+"""MJX reaching environments with the brax ``Env`` API (thesis §6.2–6.3, docs/design.md §2.2).
 
-Names for :func:`make` and, in brackets, for ``brax.envs.get_environment`` (registered when this
-package is imported):
+Build environments with :func:`make` (names in :mod:`envs.registry`; importing this package
+registers them with brax too). For training use :func:`envs.wrappers.wrap` (its auto-reset
+re-samples goal and obstacles).
 
-* ``three_link/env1`` (``three_link_env1``), ``three_link/env2`` (``three_link_env2``),
-  ``three_link/env3`` (``three_link_env3``) — :class:`ThreeLinkReach`;
-* ``franka`` (``franka_reach``) — :class:`FrankaReach`;
-* ``point2d`` (``point_robot_2d``) — :class:`PointRobot2D`.
-
-Keyword arguments are passed to the constructor, e.g.
-``make("three_link/env3", obstacle_sampler="original", observation="residual_rmp")``. For
-training use :func:`envs.wrappers.wrap` (its auto-reset re-samples goal and obstacles).
+* :mod:`envs.registry` — :func:`make`, :data:`ENVIRONMENTS`, :data:`BRAX_NAMES`, brax registration;
+* :mod:`envs.base` — action checks, reward, episode bookkeeping shared by every environment;
+* :mod:`envs.reaching` — :class:`ReachEnv`, the MJX reaching machinery (PD control, geometry,
+  observation, reset/step);
+* :mod:`envs.three_link` — :class:`ThreeLinkReach` (planar 3-link, setups env1–env3);
+* :mod:`envs.franka` — :class:`FrankaReach` (Franka Panda, ball obstacles);
+* :mod:`envs.point2d` — :class:`PointRobot2D` (pure-JAX double integrator);
+* :mod:`envs.samplers` — region samplers and bounded rejection;
+* :mod:`envs.wrappers` — the re-sampling auto-reset, :func:`wrap`, :class:`RMPInEnv`;
+* :mod:`envs.evaluate` — frozen-episode rollouts and summaries of a policy;
+* :mod:`envs.render` — animated GIFs of a rollout (needs matplotlib, ``pip install -e ".[plots]"``).
 """
 
 from __future__ import annotations
 
-import functools
-from collections.abc import Callable
-
-import brax.envs
-
-from envs.point_robot import PointRobot2D, PointState
-from envs.reaching import FrankaReach, ReachEnv, ThreeLinkReach
+from envs.franka import FrankaReach
+from envs.point2d import PointRobot2D, PointState
+from envs.reaching import ReachEnv
+from envs.registry import BRAX_NAMES, ENVIRONMENTS, make, register_brax
+from envs.three_link import ThreeLinkReach
 from envs.wrappers import AutoResetWrapper, RMPInEnv, wrap
-
-ENVIRONMENTS: dict[str, Callable[..., brax.envs.Env]] = {
-    "three_link/env1": functools.partial(ThreeLinkReach, "env1"),
-    "three_link/env2": functools.partial(ThreeLinkReach, "env2"),
-    "three_link/env3": functools.partial(ThreeLinkReach, "env3"),
-    "franka": FrankaReach,
-    "point2d": PointRobot2D,
-}
-#: brax registry names (valid identifiers) → :data:`ENVIRONMENTS` names.
-BRAX_NAMES: dict[str, str] = {
-    "three_link_env1": "three_link/env1",
-    "three_link_env2": "three_link/env2",
-    "three_link_env3": "three_link/env3",
-    "franka_reach": "franka",
-    "point_robot_2d": "point2d",
-}
-
-
-def make(name: str, *, rmp_in_env: bool = False, **kwargs) -> brax.envs.Env:
-    """Build the environment called ``name`` (see the module docstring).
-
-    With ``rmp_in_env=True`` the environment is wrapped in :class:`RMPInEnv` (RMP² inside the
-    environment, thesis §6.1.1: the action is a residual RMP), observing ``"residual_rmp"``
-    unless ``observation`` is given.
-    """
-    if name in BRAX_NAMES:
-        name = BRAX_NAMES[name]
-    if name not in ENVIRONMENTS:
-        raise ValueError(
-            f"unknown environment name={name!r}; valid names are {sorted(ENVIRONMENTS)}"
-        )
-    if rmp_in_env:
-        kwargs.setdefault("observation", "residual_rmp")
-        return RMPInEnv(ENVIRONMENTS[name](**kwargs))
-    return ENVIRONMENTS[name](**kwargs)
-
-
-def register_brax() -> None:
-    """Register every environment with ``brax.envs.register_environment`` (idempotent)."""
-    for brax_name, name in BRAX_NAMES.items():
-        brax.envs.register_environment(brax_name, functools.partial(make, name))
-
 
 register_brax()
 
@@ -78,7 +38,17 @@ __all__ = [
     "RMPInEnv",
     "ReachEnv",
     "ThreeLinkReach",
+    "base",
+    "evaluate",
+    "franka",
     "make",
+    "point2d",
+    "reaching",
     "register_brax",
+    "registry",
+    "render",
+    "samplers",
+    "three_link",
     "wrap",
+    "wrappers",
 ]

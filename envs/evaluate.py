@@ -1,4 +1,4 @@
-"""Roll out the hand-designed RMP² policy over many episodes in one compiled call.
+"""Roll out a policy (by default the hand-designed RMP² policy) over many episodes in one call.
 
 ``evaluate(env, num_episodes)`` vmaps ``num_episodes`` episodes and runs ``lax.scan`` over the
 horizon (600 control steps). Each episode is frozen once it is done (no auto-reset), so the
@@ -20,16 +20,21 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
+from brax.envs.base import Env, State
 
-import envs as envs_pkg
 from envs.reaching import ReachEnv
+from envs.registry import make
 from mjxrmp import policies
 
+__all__ = ["evaluate", "frozen_step", "hand_designed_policy", "make_rollout", "summarize"]
 
-def hand_designed_policy(env: ReachEnv, variant: str = "hand_designed"):
+
+def hand_designed_policy(env: ReachEnv, variant: str = "hand_designed"
+                         ) -> Callable[[State], jax.Array]:
     """``policy(state) -> action`` for a single (un-batched) environment state."""
     cfg = policies.default_config(env.robot_name, variant)
 
@@ -41,20 +46,29 @@ def hand_designed_policy(env: ReachEnv, variant: str = "hand_designed"):
     return policy
 
 
-def make_rollout(env: ReachEnv, num_episodes: int, horizon: int | None = None, policy=None):
+def frozen_step(env: Env, policy: Callable[[State], jax.Array]) -> Callable[[State], State]:
+    """``step(state) -> state``: one control step of ``policy``, or ``state`` unchanged once
+    the episode is done (no auto-reset, so per-episode statistics stay exact)."""
+
+    def step(state: State) -> State:
+        new = env.step(state, policy(state))
+        frozen = state.done > 0
+        return jax.tree.map(lambda a, b: jnp.where(frozen, b, a), new, state)
+
+    return step
+
+
+def make_rollout(env: ReachEnv, num_episodes: int, horizon: int | None = None,
+                 policy: Callable[[State], jax.Array] | None = None
+                 ) -> Callable[[jax.Array], dict[str, jax.Array]]:
     """Jitted ``rollout(key) -> dict`` of per-episode arrays ``(num_episodes,)``."""
     horizon = env.horizon if horizon is None else horizon
     policy = hand_designed_policy(env) if policy is None else policy
-
-    def one_step(state, _):
-        new = env.step(state, policy(state))
-        frozen = state.done > 0
-        new = jax.tree.map(lambda a, b: jnp.where(frozen, b, a), new, state)
-        return new, None
+    step = frozen_step(env, policy)
 
     def episode(key):
         state = env.reset(key)
-        state, _ = jax.lax.scan(one_step, state, None, length=horizon)
+        state, _ = jax.lax.scan(lambda s, _: (step(s), None), state, None, length=horizon)
         info, m = state.info, state.metrics
         safe = (info["episode_collided"] == 0) & (info["episode_nonfinite"] == 0)
         final = m["goal_distance"]
@@ -89,7 +103,8 @@ def summarize(per_episode: dict) -> dict:
     }
 
 
-def evaluate(env: ReachEnv, num_episodes: int = 64, seed: int = 0, horizon: int | None = None):
+def evaluate(env: ReachEnv, num_episodes: int = 64, seed: int = 0,
+             horizon: int | None = None) -> dict:
     """Summary statistics and wall times (compile and run, seconds) of the hand-designed policy."""
     rollout = make_rollout(env, num_episodes, horizon)
     key = jax.random.PRNGKey(seed)
@@ -103,7 +118,8 @@ def evaluate(env: ReachEnv, num_episodes: int = 64, seed: int = 0, horizon: int 
     return summary
 
 
-def main(argv=None) -> dict:
+def main(argv: list[str] | None = None) -> dict:
+    """CLI entry point (module docstring): print and return the summary as JSON."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--env", default="three_link/env3")
     p.add_argument("--episodes", type=int, default=64)
@@ -115,7 +131,7 @@ def main(argv=None) -> dict:
     kwargs = {"action_limit": args.action_limit}
     if args.obstacle_sampler is not None:
         kwargs["obstacle_sampler"] = args.obstacle_sampler
-    env = envs_pkg.make(args.env, **kwargs)
+    env = make(args.env, **kwargs)
     summary = {"env": args.env, **evaluate(env, args.episodes, args.seed, args.horizon)}
     print(json.dumps(summary))
     return summary

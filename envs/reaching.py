@@ -1,6 +1,7 @@
-"""MJX reaching environments with the brax ``Env`` API: planar 3-link and Franka Panda.
+"""The MJX reaching environment shared by the robots: :class:`ReachEnv` (brax ``Env`` API).
 
-Thesis §6.2–6.3, docs/design.md §2.2, docs/design.md §4.3.
+Thesis §6.2–6.3, docs/design.md §2.2 and §4.3. The robots subclass it:
+:class:`envs.three_link.ThreeLinkReach` and :class:`envs.franka.FrankaReach`.
 
 **Control (acceleration actions through PD tracking).** The action is a joint acceleration,
 NaNs replaced by 0 and clipped to ``±action_limit`` (1 by default). The environment keeps a
@@ -21,13 +22,13 @@ term and the observation vectors come from analytic JAX geometry on the robot's 
 (:mod:`mjxrmp.geometry`, exact norm): 3-link obstacles are vertical cylinders (circles in the
 plane), Franka obstacles are balls.
 
-**Reward** per substep ``exp(−½‖x−g‖²/σ²) − Σ_i max(0, 1 − d_i/δ) − λ‖τ‖²`` clipped to
-``[−5, 1]`` (σ 0.1, δ 0.05, λ 1e-5; ``d_i`` the smallest control-point surface distance to
-obstacle ``i``; ``τ = data.qfrc_actuator``), averaged over the substeps up to and including the
-first colliding one. ``done = 1`` on collision (any exact distance < 0) and on a non-finite
-state (then ``metrics["nonfinite"] = 1``, the reward is −5 and the observation is zeroed where
-non-finite). The episode limit (600 control steps, :attr:`ReachEnv.horizon`) is applied by the
-episode wrapper (:func:`envs.wrappers.wrap`).
+**Reward** per substep :func:`envs.base.reach_reward` with ``τ = data.qfrc_actuator`` as the
+effort (``exp(−½‖x−g‖²/σ²) − Σ_i max(0, 1 − d_i/δ) − λ‖τ‖²`` clipped to ``[−5, 1]``; ``d_i`` the
+smallest control-point surface distance to obstacle ``i``), averaged over the substeps up to
+and including the first colliding one. ``done = 1`` on collision (any exact distance < 0) and
+on a non-finite state (then ``metrics["nonfinite"] = 1``, the reward is −5 and the observation
+is zeroed where non-finite). The episode limit (600 control steps, :attr:`ReachEnv.horizon`) is
+applied by the episode wrapper (:func:`envs.wrappers.wrap`).
 
 **Per-step metrics** (``state.metrics``, summed over an episode by brax's ``EpisodeWrapper``):
 ``goal_distance``, ``success`` (goal distance < 0.05 m), ``collision``, ``nonfinite``,
@@ -39,9 +40,6 @@ success are the last step's metrics.
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable
-
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -49,31 +47,31 @@ from brax.envs.base import Env, State
 from mujoco import mjx
 
 import mjxrmp  # noqa: F401  (sets the XLA:CPU flag before JAX initialises)
-from envs import samplers
-from envs.checks import check_action
+from envs.base import (
+    RewardParams,
+    accumulate_episode,
+    check_action,
+    clean_action,
+    episode_info,
+    layout,
+    reach_reward,
+    sample_first_valid,
+)
+from mjxrmp.config import check_bool, check_choice, check_float, check_int
 from mjxrmp.geometry import Obstacles
 from mjxrmp.leaves.hand_designed import safe_norm
-from mjxrmp.robots import Robot, get, mjcf
+from mjxrmp.robots import Robot, get
 
-OBSTACLE_SAMPLERS = ("thesis", "original")
 OBSERVATIONS = ("default", "residual_rmp")
-THREE_LINK_SETUPS = ("env1", "env2", "env3")
 
-#: Servo gains chosen for tight, stable velocity tracking at float32 (implicitfast integrates the
-#: velocity gain implicitly). Because ``q_target − q = q̇_v·dt``, the servo is in effect a velocity
-#: servo whose steady-state velocity bias is ``kp·dt/kv``; the mjcf defaults (3-link 100/10,
-#: Franka 1000/50) give a 4 % / 8 % bias and tracking errors up to 0.1 / 0.06 rad/s with the
-#: hand-designed policy, these give < 0.005 / 0.01 rad/s (measured on 64 / 32 rollouts).
-THREE_LINK_KP = 300.0
-THREE_LINK_KV = 300.0
-FRANKA_KP = 1000.0
-FRANKA_KV = 300.0
+__all__ = ["OBSERVATIONS", "ReachEnv"]
 
 
 class ReachEnv(Env):
     """Shared machinery of the reaching environments (not registered itself).
 
-    Subclasses provide the robot, the MJCF, the obstacle shape and :meth:`sample_scene`.
+    Subclasses provide the robot, the MJCF, the obstacle shape and :meth:`_candidate` (one
+    goal-and-obstacles candidate for :meth:`sample_scene`).
     """
 
     robot_name: str = ""
@@ -98,22 +96,18 @@ class ReachEnv(Env):
         observation: str = "default",
         measured_velocity: bool = False,
     ):
-        if observation not in OBSERVATIONS:
-            raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
-        if num_obstacles < 1:
-            raise ValueError(f"num_obstacles must be >= 1, got {num_obstacles}")
-        if action_limit <= 0:
-            raise ValueError(f"action_limit must be > 0, got {action_limit}")
-        if substeps < 1 or horizon < 1 or candidates < 1:
-            raise ValueError("substeps, horizon and candidates must be >= 1")
+        name = type(self).__name__
+        self.observation_variant = check_choice(observation, f"{name}.observation", OBSERVATIONS)
+        self.num_obstacles = check_int(num_obstacles, f"{name}.num_obstacles")
+        self.action_limit = check_float(action_limit, f"{name}.action_limit")
+        self.substeps = check_int(substeps, f"{name}.substeps")
+        self.horizon = check_int(horizon, f"{name}.horizon")
+        self.candidates = check_int(candidates, f"{name}.candidates")
+        self.measured_velocity = check_bool(measured_velocity, f"{name}.measured_velocity")
         self.robot: Robot = get(self.robot_name)
         self.mj_model = mujoco.MjModel.from_xml_string(xml)
         self.mjx_model = mjx.put_model(self.mj_model)
         self._data0 = mjx.make_data(self.mjx_model)
-        self.num_obstacles = num_obstacles
-        self.action_limit = float(action_limit)
-        self.substeps = int(substeps)
-        self.horizon = int(horizon)
         self.sim_dt = float(self.mj_model.opt.timestep)
         self.dt = self.sim_dt * self.substeps
         self.goal_sigma = goal_sigma
@@ -123,9 +117,6 @@ class ReachEnv(Env):
         self.reward_max = reward_max
         self.success_radius = success_radius
         self.clearance = clearance
-        self.candidates = int(candidates)
-        self.observation_variant = observation
-        self.measured_velocity = measured_velocity
         r = self.robot
         self._q_lower = jnp.asarray(r.q_lower, jnp.float32)
         self._q_upper = jnp.asarray(r.q_upper, jnp.float32)
@@ -135,20 +126,29 @@ class ReachEnv(Env):
     # ------------------------------------------------------------------ brax Env API
     @property
     def observation_size(self) -> int:
+        """Length of the observation vector (:meth:`observation_layout`)."""
         return sum(sl.stop - sl.start for sl in self.observation_layout().values())
 
     @property
     def action_size(self) -> int:
+        """One joint acceleration per degree of freedom."""
         return self.robot.dof
 
     @property
     def backend(self) -> str:
+        """``"mjx"``."""
         return "mjx"
 
     @property
     def obs_dim(self) -> int:
         """Dimension of obstacle centres and of ``v_i`` (2 for the 3-link, 3 for the Franka)."""
         return self.robot.workspace_dim
+
+    @property
+    def reward_params(self) -> RewardParams:
+        """The reward constants (σ, δ, λ and the clipping range) as :class:`RewardParams`."""
+        return RewardParams(self.goal_sigma, self.obstacle_delta, self.torque_weight,
+                            self.reward_min, self.reward_max)
 
     def observation_layout(self) -> dict[str, slice]:
         """Named slices of the observation vector (thesis §6.2.2).
@@ -159,21 +159,11 @@ class ReachEnv(Env):
         variant appends ``goal``, ``ee_position`` and ``ee_velocity`` (dim each).
         """
         d, w, o = self.robot.dof, self.obs_dim, self.num_obstacles
-        sizes = [
-            ("sin_q", d),
-            ("cos_q", d),
-            ("qd", d),
-            ("goal_minus_x", w),
-            ("obstacle_vectors", o * w),
-            ("obstacles", o * (w + 1)),
-        ]
+        sizes = [("sin_q", d), ("cos_q", d), ("qd", d), ("goal_minus_x", w),
+                 ("obstacle_vectors", o * w), ("obstacles", o * (w + 1))]
         if self.observation_variant == "residual_rmp":
             sizes += [("goal", w), ("ee_position", w), ("ee_velocity", w)]
-        out, start = {}, 0
-        for name, n in sizes:
-            out[name] = slice(start, start + n)
-            start += n
-        return out
+        return layout(sizes)
 
     # ------------------------------------------------------------------ scene sampling
     def sample_scene(self, key: jax.Array):
@@ -185,12 +175,20 @@ class ReachEnv(Env):
         """
         k_q, k_scene = jax.random.split(key)
         q0, qd0 = self._sample_q0(k_q)
-        (goal, obstacles), ok = self._reject(k_scene, lambda k: self._candidate(k, q0))
+        (goal, obstacles), ok = sample_first_valid(k_scene, self.candidates,
+                                                   lambda k: self._candidate(k, q0))
         return q0, qd0, goal, obstacles, ok
 
     def _candidate(self, key: jax.Array, q0: jax.Array):
         """``((goal, obstacles), margin)``: one candidate and its clearance margin (≥ 0: valid)."""
         raise NotImplementedError
+
+    def _scene_margin(self, q0: jax.Array, goal: jax.Array, obstacles: Obstacles) -> jax.Array:
+        """Clearance margin of a scene: the smaller of the robot's and the goal's clearance to
+        the obstacles, minus :attr:`clearance` (≥ 0: valid)."""
+        return jnp.minimum(
+            self._robot_clearance(q0, obstacles), self._goal_clearance(goal, obstacles)
+        ) - self.clearance
 
     def _sample_q0(self, key: jax.Array, spread: float = 0.1, qd_spread: float = 0.005):
         k_q, k_qd = jax.random.split(key)
@@ -203,34 +201,25 @@ class ReachEnv(Env):
         qd0 = jax.random.uniform(k_qd, (d,), minval=-qd_spread, maxval=qd_spread)
         return q0, qd0
 
+    # ------------------------------------------------------------------ geometry
+    def _planar(self, diff: jax.Array) -> jax.Array:
+        """Centre differences as the obstacle shape measures them (cylinders: x-y only)."""
+        return diff[..., :2] if self.obstacle_shape == "cylinder" else diff
+
+    def distances(self, q: jax.Array, obstacles: Obstacles) -> jax.Array:
+        """Exact surface distances ``(P, O)`` between control points and obstacles."""
+        pts = self.robot.control_points(q)
+        diff = self._planar(pts[:, None, :] - obstacles.center[None, :, :])
+        return safe_norm(diff) - self._radii[:, None] - obstacles.radius[None, :]
+
     def _robot_clearance(self, q: jax.Array, obstacles: Obstacles) -> jax.Array:
         """Smallest exact surface distance between the robot and any active obstacle."""
         d = self.distances(q, obstacles)
         return jnp.min(jnp.where(obstacles.active[None, :] > 0, d, jnp.inf))
 
     def _goal_clearance(self, goal: jax.Array, obstacles: Obstacles) -> jax.Array:
-        diff = goal[None, :] - obstacles.center
-        if self.obstacle_shape == "cylinder":
-            diff = diff[:, :2]
-        d = safe_norm(diff) - obstacles.radius
+        d = safe_norm(self._planar(goal[None, :] - obstacles.center)) - obstacles.radius
         return jnp.min(jnp.where(obstacles.active > 0, d, jnp.inf))
-
-    def _reject(self, key: jax.Array, candidate: Callable[[jax.Array], tuple]):
-        """Draw ``candidates`` scenes with ``candidate(key) -> (scene, margin)`` and keep the
-        first whose ``margin >= 0`` (bounded rejection; ``ok`` False when none is valid)."""
-        keys = jax.random.split(key, self.candidates)
-        scenes, margin = jax.vmap(candidate)(keys)
-        idx, ok = samplers.first_valid(margin >= 0.0, margin)
-        return samplers.take(scenes, idx), ok
-
-    # ------------------------------------------------------------------ geometry
-    def distances(self, q: jax.Array, obstacles: Obstacles) -> jax.Array:
-        """Exact surface distances ``(P, O)`` between control points and obstacles."""
-        pts = self.robot.control_points(q)
-        diff = pts[:, None, :] - obstacles.center[None, :, :]
-        if self.obstacle_shape == "cylinder":
-            diff = diff[..., :2]
-        return safe_norm(diff) - self._radii[:, None] - obstacles.radius[None, :]
 
     def obstacle_vectors(self, q: jax.Array, obstacles: Obstacles) -> tuple[jax.Array, jax.Array]:
         """``v_i`` (O, dim): from obstacle ``i``'s surface to the closest control-point surface
@@ -272,7 +261,6 @@ class ReachEnv(Env):
         obs = jnp.concatenate(parts)
         return jnp.where(jnp.isfinite(obs), obs, 0.0)
 
-    # ------------------------------------------------------------------ policy inputs
     @staticmethod
     def policy_inputs(state: State):
         """``(q, q̇, goal, obstacles)`` as an RMP² policy sees them (``q̇`` = virtual velocity)."""
@@ -280,51 +268,38 @@ class ReachEnv(Env):
         return state.pipeline_state.qpos, info["qd_virtual"], info["goal"], info["obstacles"]
 
     # ------------------------------------------------------------------ reset / step
-    def _zero_metrics(self) -> dict[str, jax.Array]:
-        z = jnp.zeros((), jnp.float32)
-        return {
-            "goal_distance": z,
-            "success": z,
-            "collision": z,
-            "nonfinite": z,
-            "min_obstacle_distance": z,
-            "tracking_error": z,
-        }
+    def _goal_metrics(self, q: jax.Array, goal: jax.Array) -> dict[str, jax.Array]:
+        goal_distance = safe_norm(goal - self.robot.end_effector(q))
+        return {"goal_distance": goal_distance,
+                "success": (goal_distance < self.success_radius).astype(jnp.float32)}
 
     def reset(self, rng: jax.Array) -> State:
+        """A new episode: scene from :meth:`sample_scene`, servos holding the initial state."""
         k_scene, k_next = jax.random.split(rng)
         q0, qd0, goal, obstacles, ok = self.sample_scene(k_scene)
         data = self._data0.replace(
             qpos=q0, qvel=qd0, ctrl=jnp.concatenate([q0, qd0]).astype(self._data0.ctrl.dtype)
         )
         obs = self.observe(q0, qd0, goal, obstacles)
-        metrics = self._zero_metrics()
-        ee = self.robot.end_effector(q0)
-        metrics["goal_distance"] = safe_norm(goal - ee)
-        metrics["success"] = (metrics["goal_distance"] < self.success_radius).astype(jnp.float32)
-        metrics["min_obstacle_distance"] = self._robot_clearance(q0, obstacles)
         z = jnp.zeros((), jnp.float32)
-        info = {
-            "rng": k_next,
-            "goal": goal,
-            "obstacles": obstacles,
-            "qd_virtual": qd0,
-            "sampler_ok": ok.astype(jnp.float32),
-            "episode_return": z,
-            "episode_length": z,
-            "episode_collided": z,
-            "episode_nonfinite": z,
-        }
+        metrics = {**self._goal_metrics(q0, goal), "collision": z, "nonfinite": z,
+                   "min_obstacle_distance": self._robot_clearance(q0, obstacles),
+                   "tracking_error": z}
+        info = {"rng": k_next, "goal": goal, "obstacles": obstacles, "qd_virtual": qd0,
+                "sampler_ok": ok.astype(jnp.float32), **episode_info()}
         return State(data, obs, z, z, metrics, info)
 
     def _substep(self, a: jax.Array, goal: jax.Array, obstacles: Obstacles):
+        """``scan`` body of one physics substep: PD targets from ``q̇_v`` (module docstring),
+        ``mjx.step``, and the substep's reward and collision flag."""
         lower_finite = jnp.isfinite(self._q_lower)
         upper_finite = jnp.isfinite(self._q_upper)
+        active = obstacles.active > 0
+        params = self.reward_params
 
         def body(carry, _):
             data, qv = carry
-            q = data.qpos
-            q_t = jnp.clip(q + qv * self.sim_dt, self._q_lower, self._q_upper)
+            q_t = jnp.clip(data.qpos + qv * self.sim_dt, self._q_lower, self._q_upper)
             at_limit = (lower_finite & (q_t <= self._q_lower)) | (
                 upper_finite & (q_t >= self._q_upper)
             )
@@ -332,33 +307,20 @@ class ReachEnv(Env):
             qd_t = jnp.clip(qd_t, -self._qd_max, self._qd_max)
             data = data.replace(ctrl=jnp.concatenate([q_t, qd_t]).astype(data.ctrl.dtype))
             data = mjx.step(self.mjx_model, data)
-            q_new = data.qpos
-            ee = self.robot.end_effector(q_new)
-            dist_goal = safe_norm(ee - goal)
-            d = self.distances(q_new, obstacles)
+            dist_goal = safe_norm(self.robot.end_effector(data.qpos) - goal)
+            d = self.distances(data.qpos, obstacles)
             d_obs = jnp.min(jnp.where(obstacles.active[None, :] > 0, d, jnp.inf), axis=0)
-            active = obstacles.active > 0
-            obstacle_cost = jnp.sum(
-                jnp.where(active, jnp.maximum(0.0, 1.0 - d_obs / self.obstacle_delta), 0.0)
-            )
-            tau = data.qfrc_actuator
-            r = (
-                jnp.exp(-0.5 * dist_goal**2 / self.goal_sigma**2)
-                - obstacle_cost
-                - self.torque_weight * jnp.sum(tau * tau)
-            )
-            r = jnp.clip(r, self.reward_min, self.reward_max)
-            collided = jnp.any(active & (d_obs < 0.0))
-            return (data, qd_t), (r, collided)
+            r = reach_reward(dist_goal, d_obs, active, data.qfrc_actuator, params)
+            return (data, qd_t), (r, jnp.any(active & (d_obs < 0.0)))
 
         return body
 
     def step(self, state: State, action: jax.Array) -> State:
+        """One control step: ``substeps`` physics substeps of the PD scheme (module docstring)."""
         check_action(action, self.action_size)
         info = dict(state.info)
         goal, obstacles = info["goal"], info["obstacles"]
-        a = jnp.where(jnp.isfinite(action), action, 0.0)
-        a = jnp.clip(a, -self.action_limit, self.action_limit).astype(jnp.float32)
+        a = clean_action(action, self.action_limit).astype(jnp.float32)
         (data, qv), (rs, cols) = jax.lax.scan(
             self._substep(a, goal, obstacles),
             (state.pipeline_state, info["qd_virtual"]),
@@ -375,159 +337,15 @@ class ReachEnv(Env):
         finite = (
             jnp.all(jnp.isfinite(q)) & jnp.all(jnp.isfinite(data.qvel)) & jnp.all(jnp.isfinite(qv))
         )
-        qd_obs = data.qvel if self.measured_velocity else qv
-        obs = self.observe(q, qd_obs, goal, obstacles)
-        ee = self.robot.end_effector(q)
-        goal_distance = safe_norm(goal - ee)
+        obs = self.observe(q, data.qvel if self.measured_velocity else qv, goal, obstacles)
         reward = jnp.where(finite & jnp.isfinite(reward), reward, self.reward_min)
         nonfinite = (~finite).astype(jnp.float32)
-        done = (collided | ~finite).astype(jnp.float32)
-        metrics = {
-            "goal_distance": goal_distance,
-            "success": (goal_distance < self.success_radius).astype(jnp.float32),
-            "collision": collided.astype(jnp.float32),
-            "nonfinite": nonfinite,
-            "min_obstacle_distance": self._robot_clearance(q, obstacles),
-            "tracking_error": jnp.max(jnp.abs(data.qvel - qv)),
-        }
+        metrics = {**self._goal_metrics(q, goal), "collision": collided.astype(jnp.float32),
+                   "nonfinite": nonfinite,
+                   "min_obstacle_distance": self._robot_clearance(q, obstacles),
+                   "tracking_error": jnp.max(jnp.abs(data.qvel - qv))}
         info["qd_virtual"] = qv
-        info["episode_return"] = info["episode_return"] + reward
-        info["episode_length"] = info["episode_length"] + 1.0
-        info["episode_collided"] = jnp.maximum(info["episode_collided"], metrics["collision"])
-        info["episode_nonfinite"] = jnp.maximum(info["episode_nonfinite"], nonfinite)
-        return state.replace(
-            pipeline_state=data, obs=obs, reward=reward, done=done, metrics=metrics, info=info
-        )
-
-
-# ---------------------------------------------------------------------- 3-link
-class ThreeLinkReach(ReachEnv):
-    """Planar 3-link reaching (thesis §6.2), setups ``env1``/``env2``/``env3``.
-
-    * initial ``q ~ U(±0.1)``, ``q̇ ~ U(±0.005)``;
-    * goals (area-uniform): ``env1``/``env2`` in the π/2 sector centred on the −x axis (angles
-      3π/4 … 5π/4, opposite the initial arm — the original training script's
-      ``goal_torus_angle_center = π``) ∩ annulus r ∈ [0.275, 0.475]; ``env3`` in the left
-      half-disk (angles π/2 … 3π/2) ∩ annulus r ∈ [0.125, 0.625];
-    * obstacles: vertical cylinders (circles in the plane), radius U[0.05, 0.10]; centres
-      ``obstacle_sampler="thesis"`` (default): area-uniform in the annulus r ∈ [0.4, 0.9]
-      (thesis text); ``"original"``: radius U[0.4, 0.5], angle U[0, 2π) (the original code's
-      2-D torus sampler with major 0.65, minor 0.25);
-    * ``env1`` has 1 obstacle (observation size 16), ``env2``/``env3`` have 3 (size 26);
-    * clearance ≥ 0.1 between goal and obstacles and between the initial robot and obstacles.
-    """
-
-    robot_name = "three_link"
-    obstacle_shape = "cylinder"
-
-    def __init__(
-        self,
-        setup: str = "env3",
-        *,
-        obstacle_sampler: str = "thesis",
-        kp: float = THREE_LINK_KP,
-        kv: float = THREE_LINK_KV,
-        num_obstacles: int | None = None,
-        **kwargs,
-    ):
-        if setup not in THREE_LINK_SETUPS:
-            raise ValueError(f"setup must be one of {THREE_LINK_SETUPS}, got {setup!r}")
-        if obstacle_sampler not in OBSTACLE_SAMPLERS:
-            raise ValueError(
-                f"obstacle_sampler must be one of {OBSTACLE_SAMPLERS}, got {obstacle_sampler!r}"
-            )
-        self.setup = setup
-        self.obstacle_sampler = obstacle_sampler
-        if setup == "env3":
-            self.goal_region = (0.125, 0.625, math.pi, math.pi)
-        else:
-            self.goal_region = (0.275, 0.475, math.pi, math.pi / 2)
-        self.obstacle_region = (0.4, 0.9) if obstacle_sampler == "thesis" else (0.4, 0.5)
-        self.obstacle_radius_range = (0.05, 0.10)
-        if num_obstacles is None:
-            num_obstacles = 1 if setup == "env1" else 3
-        super().__init__(
-            xml=mjcf.three_link_mjcf(kp=kp, kv=kv), num_obstacles=num_obstacles, **kwargs
-        )
-
-    def _candidate(self, key: jax.Array, q0: jax.Array):
-        k_g, k_c, k_r = jax.random.split(key, 3)
-        r_min, r_max, a_c, a_r = self.goal_region
-        goal = samplers.annulus(k_g, (), r_min, r_max, a_c, a_r)
-        n = self.num_obstacles
-        lo, hi = self.obstacle_region
-        if self.obstacle_sampler == "thesis":
-            centers = samplers.annulus(k_c, (n,), lo, hi)
-        else:
-            centers = samplers.annulus(k_c, (n,), lo, hi, area_uniform=False)
-        radius = jax.random.uniform(
-            k_r, (n,), minval=self.obstacle_radius_range[0], maxval=self.obstacle_radius_range[1]
-        )
-        obstacles = Obstacles(centers, radius, jnp.ones((n,), jnp.float32))
-        margin = jnp.minimum(
-            self._robot_clearance(q0, obstacles), self._goal_clearance(goal, obstacles)
-        ) - self.clearance
-        return (goal, obstacles), margin
-
-
-# ---------------------------------------------------------------------- Franka
-class FrankaReach(ReachEnv):
-    """Franka Panda reaching (thesis §6.3): 3 ball obstacles and the goal volume-uniform in the
-    front half of the solid torus around the z-axis (major 0.5, minor 0.3, centre height 0.5,
-    azimuth |φ| ≤ π/2, i.e. x > 0); ball radius U[0.05, 0.10]; goal ≥ 0.5 m from the initial end
-    effector; clearance ≥ 0.1 between goal and balls and between the initial robot (48 control
-    points) and the balls; initial ``q = default_q + U(±0.1)``, ``q̇ ~ U(±0.005)``. Observation
-    size 45 (54 for the residual-RMP variant). A scene candidate is valid with probability ≈ 0.2,
-    so 64 candidates are drawn per reset (failure probability ≈ 1e-6, flagged in
-    ``info["sampler_ok"]``)."""
-
-    robot_name = "franka"
-    obstacle_shape = "sphere"
-
-    def __init__(
-        self,
-        *,
-        kp: float = FRANKA_KP,
-        kv: float = FRANKA_KV,
-        armature: float = mjcf.FRANKA_ARMATURE,
-        num_obstacles: int = 3,
-        min_goal_distance: float = 0.5,
-        candidates: int = 64,
-        **kwargs,
-    ):
-        self.torus = (0.5, 0.3, 0.5, 0.0, math.pi)  # major, minor, height, angle centre/range
-        self.obstacle_radius_range = (0.05, 0.10)
-        self.min_goal_distance = min_goal_distance
-        super().__init__(
-            xml=mjcf.franka_mjcf(kp=kp, kv=kv, armature=armature),
-            num_obstacles=num_obstacles,
-            candidates=candidates,
-            **kwargs,
-        )
-
-    def _candidate(self, key: jax.Array, q0: jax.Array):
-        k_p, k_r = jax.random.split(key)
-        n = self.num_obstacles
-        pts, pts_ok = samplers.half_torus_volume_uniform(k_p, (n + 1,), *self.torus)
-        goal, centers = pts[0], pts[1:]
-        radius = jax.random.uniform(
-            k_r, (n,), minval=self.obstacle_radius_range[0], maxval=self.obstacle_radius_range[1]
-        )
-        obstacles = Obstacles(centers, radius, jnp.ones((n,), jnp.float32))
-        ee0 = self.robot.end_effector(q0)
-        margin = jnp.minimum(
-            self._robot_clearance(q0, obstacles), self._goal_clearance(goal, obstacles)
-        ) - self.clearance
-        margin = jnp.minimum(margin, safe_norm(goal - ee0) - self.min_goal_distance)
-        margin = jnp.where(jnp.all(pts_ok), margin, -jnp.inf)
-        return (goal, obstacles), margin
-
-
-__all__ = [
-    "OBSERVATIONS",
-    "OBSTACLE_SAMPLERS",
-    "THREE_LINK_SETUPS",
-    "FrankaReach",
-    "ReachEnv",
-    "ThreeLinkReach",
-]
+        info = accumulate_episode(info, reward, metrics["collision"], nonfinite)
+        return state.replace(pipeline_state=data, obs=obs, reward=reward,
+                             done=(collided | ~finite).astype(jnp.float32), metrics=metrics,
+                             info=info)

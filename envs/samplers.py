@@ -22,6 +22,7 @@ Region conventions (angles in radians, counter-clockwise from +x):
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -34,7 +35,7 @@ def first_valid(valid: jax.Array, score: jax.Array) -> tuple[jax.Array, jax.Arra
     return idx, ok
 
 
-def take(tree, idx: jax.Array):
+def take(tree: Any, idx: jax.Array) -> Any:
     """Select candidate ``idx`` along the leading axis of every leaf of ``tree``."""
     return jax.tree.map(lambda x: x[idx], tree)
 

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 from brax.envs.base import Env, State, Wrapper
 from brax.envs.wrappers.training import EpisodeWrapper, VmapWrapper
 
-from envs.checks import check_action
+from envs.base import check_action
 from mjxrmp import policies
 
 #: ``state.info`` entries owned by brax's ``EpisodeWrapper``: kept across an automatic reset.
@@ -45,6 +45,7 @@ class AutoResetWrapper(Wrapper):
     """
 
     def step(self, state: State, action: jax.Array) -> State:
+        """Step every environment; finished episodes restart from a freshly sampled scene."""
         if "steps" in state.info:
             steps = jnp.where(state.done > 0, jnp.zeros_like(state.info["steps"]),
                               state.info["steps"])
@@ -104,6 +105,7 @@ class RMPInEnv(Wrapper):
 
     @property
     def action_size(self) -> int:
+        """``m·m + m``: the raw metric-root and acceleration residuals."""
         return self.m * self.m + self.m
 
     def squash(self, action: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -121,6 +123,7 @@ class RMPInEnv(Wrapper):
         return policies.residual_rmp_acceleration(cfg, q, qd, goal, obstacles, A_r, a_r)
 
     def step(self, state: State, action: jax.Array) -> State:
+        """Step the wrapped environment with the RMP² acceleration of the residual action."""
         check_action(action, self.action_size)
         return self.env.step(state, self.joint_acceleration(state, action))
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import Any, TypeVar
 
 import jax
@@ -101,10 +101,15 @@ def check_float(value: Any, name: str, *, allow_zero: bool = False) -> float:
     return float(value)
 
 
-def check_fraction(value: Any, name: str, *, closed: bool = False) -> float:
-    """``value`` as a ``float`` if it lies in ``(0, 1)`` (``(0, 1]`` when ``closed``)."""
-    if not _is_number(value) or not (value > 0.0 and (value <= 1.0 if closed else value < 1.0)):
-        raise ValueError(f"{name} must lie in (0, 1{']' if closed else ')'}, got {value!r}")
+def check_fraction(value: Any, name: str, *, closed: bool = False,
+                   allow_zero: bool = False) -> float:
+    """``value`` as a ``float`` if it lies in ``(0, 1)`` (``(0, 1]`` when ``closed``, ``[0, …``
+    with ``allow_zero``)."""
+    ok = _is_number(value) and (value >= 0.0 if allow_zero else value > 0.0) and (
+        value <= 1.0 if closed else value < 1.0)
+    if not ok:
+        interval = f"{'[' if allow_zero else '('}0, 1{']' if closed else ')'}"
+        raise ValueError(f"{name} must lie in {interval}, got {value!r}")
     return float(value)
 
 
@@ -121,3 +126,36 @@ def check_choice(value: Any, name: str, choices: Iterable[Any]) -> Any:
     if value not in choices:
         raise ValueError(f"{name} must be one of {list(choices)}, got {value!r}")
     return value
+
+
+def check_finite(value: Any, name: str, *, allow_none: bool = False) -> float | None:
+    """``value`` as a ``float`` if it is a finite number of any sign (``None`` passes with
+    ``allow_none``)."""
+    if value is None and allow_none:
+        return None
+    if not _is_number(value) or not math.isfinite(value):
+        extra = " or None" if allow_none else ""
+        raise ValueError(f"{name} must be a finite number{extra}, got {value!r}")
+    return float(value)
+
+
+def check_sizes(value: Any, name: str, *, allow_empty: bool = False,
+                require_tuple: bool = False) -> tuple[int, ...]:
+    """``value`` as a tuple of positive integers (network hidden sizes); ``require_tuple``
+    refuses other sequences (a hashable config field must already be a tuple)."""
+    kind = tuple if require_tuple else Sequence
+    if isinstance(value, str | bytes) or not isinstance(value, kind) or (
+            len(value) == 0 and not allow_empty):
+        what = "tuple" if require_tuple else "sequence"
+        size = "" if allow_empty else "non-empty "
+        raise ValueError(f"{name} must be a {size}{what} of positive integers, got {value!r}")
+    return tuple(check_int(h, f"{name}[{i}]") for i, h in enumerate(value))
+
+
+def check_parts(config: Any, **parts: type) -> None:
+    """Each field ``name`` of a composite ``config`` must be an instance of ``parts[name]``."""
+    for name, cls in parts.items():
+        value = getattr(config, name)
+        if not isinstance(value, cls):
+            raise ValueError(f"{type(config).__name__}.{name} must be a {cls.__name__}, got "
+                             f"{type(value).__name__}")

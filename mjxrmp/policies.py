@@ -18,6 +18,7 @@ from typing import Literal
 import jax
 import jax.numpy as jnp
 
+from mjxrmp.config import check_choice
 from mjxrmp.core import rmp2
 from mjxrmp.core.rmp import RMP
 from mjxrmp.geometry import OBSTACLE_SHAPES, Obstacles, point_obstacle_distances
@@ -63,10 +64,7 @@ class PolicyConfig:
 
     def __post_init__(self) -> None:
         robot = get(self.robot)
-        if self.obstacle_shape not in OBSTACLE_SHAPES:
-            raise ValueError(
-                f"obstacle_shape must be one of {OBSTACLE_SHAPES}, got {self.obstacle_shape!r}"
-            )
+        check_choice(self.obstacle_shape, "PolicyConfig.obstacle_shape", OBSTACLE_SHAPES)
         if self.joint_limit is not None and len(self.joint_limit_buffers) != robot.dof:
             raise ValueError(
                 f"joint_limit_buffers must have {robot.dof} entries for {self.robot}, "
@@ -127,16 +125,16 @@ def three_link_config(variant: Variant = "hand_designed") -> PolicyConfig:
     With σ_e = 0.1 it takes over at about the braking distance, so all three setups reach
     100 % safe, with the thesis sampler and with the original one. Success also went up, to
     91.8 / 80.8 / 83.5 % from 88.4 / 73.5 / 71.5 % (BENCHMARKS.md; sweep in
-    ``results/sweep_hand_designed_collision_h100.jsonl``). Scaling the collision damping instead
-    (``σ_d`` 0.04 → 0.15, or ``g_damp`` 50 → 200) works about as well: less than 1 pp more
-    success but a lower return. ``σ_e`` was chosen because it acts on the cause (priority),
-    not on a deceleration demand that the clip already saturates. The residual variants face
-    the same clip: their low target gains (``k_p 5, k_d 10``) keep the *base* policies 100 %
-    safe even with σ_e = 0.02 (sweep), but a learned residual drives the arm as fast as the
-    hand-designed policy does. With σ_e = 0.02, thesis-scale PPO of ``rmp_residual`` on env3
-    (4 seeds) stayed 100 % safe for 250 iterations and then, as the policy sped up, dropped to
-    98–99 % (569 collisions in 218,573 episodes; ``results/ch6/ablation_sigma_e_0.02``); so the
-    residual variants use σ_e = 0.1 as well.
+    ``results/environments/sweep_hand_designed_collision_h100.jsonl``). Scaling the collision
+    damping instead (``σ_d`` 0.04 → 0.15, or ``g_damp`` 50 → 200) works about as well: less
+    than 1 pp more success but a lower return. ``σ_e`` was chosen because it acts on the cause
+    (priority), not on a deceleration demand that the clip already saturates. The residual
+    variants face the same clip: their low target gains (``k_p 5, k_d 10``) keep the *base*
+    policies 100 % safe even with σ_e = 0.02 (sweep), but a learned residual drives the arm as
+    fast as the hand-designed policy does. With σ_e = 0.02, thesis-scale PPO of
+    ``rmp_residual`` on env3 (4 seeds) stayed 100 % safe for 250 iterations and then, as the
+    policy sped up, dropped to 98–99 % (569 collisions in 218,573 episodes;
+    ``results/ch6/ablation_sigma_e_0.02``); so the residual variants use σ_e = 0.1 as well.
     """
     _check_variant(variant)
     if variant == "hand_designed":

@@ -25,9 +25,19 @@ import os
 import sys
 import time
 import warnings
+from collections.abc import Sequence
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+import mjxrmp  # noqa: F401  (sets the XLA:CPU flag before JAX initialises)
+
+# isort: split
+from offline.data import collect as oc
+from offline.data import dataset as odata
 
 
 def _parser() -> argparse.ArgumentParser:
+    """Command-line options."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--env", default="three_link/env3",
                    help="environment name (envs.make), e.g. three_link/env1..env3, franka")
@@ -56,32 +66,25 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _fmt_summary(name: str, s: dict) -> str:
+    """One statistics line of a source (or of the whole dataset)."""
     return (f"{name:<24} episodes {s['episodes']:>5}  transitions {s['transitions']:>8}  "
             f"return {s['return_mean']:9.2f} ± {s['return_std']:7.2f}  "
             f"terminals {s['terminals']:>4}  timeouts {s['timeouts']:>4}  "
             f"safe {s['safe_pct']:5.1f}%  success {s['success_pct']:5.1f}%")
 
 
-def main(argv=None) -> dict:
+def main(argv: Sequence[str] | None = None) -> dict:
+    """Collect the recipe, save it, print the sources and statistics; return the report."""
     args = _parser().parse_args(argv)
-
-    import envs
-    from offline.data import collect as oc
-    from offline.data import dataset as odata
 
     def fail(msg: str) -> None:
         print(f"error: {msg}", file=sys.stderr)
         raise SystemExit(2)
 
-    # point2d has no RMP² expert: it is not a data-collection environment.
-    valid_envs = sorted(n for n in envs.ENVIRONMENTS if n != "point2d")
-    env_name = envs.BRAX_NAMES.get(args.env, args.env)
-    if env_name not in valid_envs:
-        fail(f"unknown --env {args.env!r}; valid names are {valid_envs}")
-    if args.recipe not in oc.RECIPES:
-        fail(f"unknown --recipe {args.recipe!r}; valid recipes are {list(oc.RECIPES)}")
-    if args.episodes < 1:
-        fail(f"--episodes must be >= 1, got {args.episodes}")
+    try:
+        env_name = oc.resolve_request(args.env, args.recipe, args.episodes)
+    except ValueError as e:
+        fail(str(e))
     if os.path.exists(args.out) and not args.force:
         fail(f"{args.out} exists (pass --force to overwrite)")
     env_kwargs = {} if args.action_limit is None else {"action_limit": args.action_limit}
@@ -119,16 +122,7 @@ def main(argv=None) -> dict:
     print("\nper source:")
     for s in ds.metadata["sources"]:
         print("  " + _fmt_summary(s["behaviour"]["name"], s["summary"]))
-    _, summ = odata.episode_statistics(ds)
-    eps = summ["num_episodes"]
-    safe = [s["summary"]["safe_pct"] * s["episodes"] for s in ds.metadata["sources"]]
-    success = [s["summary"]["success_pct"] * s["episodes"] for s in ds.metadata["sources"]]
-    overall = {
-        "episodes": eps, "transitions": summ["num_transitions"],
-        "return_mean": summ["return_mean"], "return_std": summ["return_std"],
-        "terminals": summ["num_terminals"], "timeouts": summ["num_timeouts"],
-        "safe_pct": sum(safe) / eps, "success_pct": sum(success) / eps,
-    }
+    overall = oc.overall_summary(ds)
     print("  " + _fmt_summary("ALL", overall))
     report = {"out": path, "env": env_name, "recipe": args.recipe, "seed": args.seed,
               "episodes_per_source": args.episodes, "seconds": round(seconds, 2),

@@ -2,7 +2,9 @@
 
 Imports only ``jax``, ``numpy`` and the standard library (``jax.export.deserialize`` also needs
 the ``flatbuffers`` package), so this file can be copied next to an exported policy and used
-without the project installed.
+without the project installed. That is why it is self-contained and holds its logic itself (it
+cannot import a project package); the manifest format it reads is written by
+``agents.run.export``.
 
 Python::
 

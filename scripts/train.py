@@ -17,7 +17,6 @@ Examples::
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import sys
 
@@ -27,46 +26,17 @@ from mjxrmp import _xla
 
 _xla.configure_cpu_flags()
 
+import jax  # noqa: E402
+
 import envs  # noqa: E402
-from agents.ppo.policies import KINDS  # noqa: E402
-from agents.ppo.train import PPOConfig  # noqa: E402
-from agents.run.training import (  # noqa: E402
-    PRESETS,
-    RunSpec,
-    improvement_summary,
-    make_mesh,
-    preset,
-    run_training,
-)
-
-
-def _parse_overrides(items: list[str]) -> dict:
-    """``["learning_rate=1e-4", "policy_hidden_sizes=64,64"]`` → typed PPOConfig overrides."""
-    fields = {f.name: f for f in dataclasses.fields(PPOConfig)}
-    defaults = PPOConfig()
-    out = {}
-    for item in items:
-        if "=" not in item:
-            raise ValueError(f"--set expects NAME=VALUE, got {item!r}")
-        name, value = item.split("=", 1)
-        if name not in fields:
-            raise ValueError(f"--set: unknown PPOConfig field {name!r}; valid fields are "
-                             f"{sorted(fields)}")
-        current = getattr(defaults, name)
-        if isinstance(current, bool):
-            out[name] = value.lower() in ("1", "true", "yes")
-        elif isinstance(current, tuple):
-            out[name] = tuple(int(v) for v in value.split(",") if v)
-        elif value.lower() == "none":
-            out[name] = None
-        elif isinstance(current, int) and name != "max_grad_norm":
-            out[name] = int(value)
-        else:
-            out[name] = float(value)
-    return out
+from agents.ppo import KINDS, make_mesh  # noqa: E402
+from agents.run.spec import PRESETS, RunSpec, parse_overrides, preset  # noqa: E402
+from agents.run.training import result_summary, run_training  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Parse the arguments into a :class:`agents.run.spec.RunSpec`, train it
+    (:func:`agents.run.training.run_training`) and print the summary; the exit status."""
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--env", default="three_link/env3",
                    help=f"environment; one of {sorted(envs.ENVIRONMENTS)}")
@@ -99,11 +69,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.preset not in PRESETS:
         p.error(f"unknown --preset {args.preset!r}; valid presets are {sorted(PRESETS)}")
     if args.distributed:
-        import jax
-
         jax.distributed.initialize()
     try:
-        overrides = _parse_overrides(args.set)
+        overrides = parse_overrides(args.set)
         if args.iterations is not None:
             overrides["total_iterations"] = args.iterations
         spec = RunSpec(env=args.env, policy=args.policy, seeds=tuple(args.seeds),
@@ -125,10 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         return 130
     if result.history:
-        print(improvement_summary(result.history), file=sys.stderr)
-        rate = result.env_steps / max(result.train_seconds, 1e-9)
-        print(f"compile {result.compile_seconds:.1f} s, training {result.train_seconds:.1f} s, "
-              f"{rate:.3g} env steps/s", file=sys.stderr)
+        print(result_summary(result), file=sys.stderr)
     print(f"wrote {out}/metrics.csv, learning_curves.png, tb/, checkpoints/", file=sys.stderr)
     return 0
 

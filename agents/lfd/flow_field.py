@@ -1,7 +1,7 @@
 """Learning a stable first-order dynamical system from demonstrations (thesis §4.2, ch. 5).
 
-**The field.** A Euclideanizing flow ``φ_θ`` (§4.2.2, eqs 4.4–4.5; :mod:`mjxrmp.learned.flows`) defines
-the subtask map ``ψ(x) = φ_θ(x − g) − φ_θ(0)`` (§4.2), so the goal ``g`` maps to the latent
+**The field.** A Euclideanizing flow ``φ_θ`` (§4.2.2, eqs 4.4–4.5; :mod:`mjxrmp.learned.flows`)
+defines the subtask map ``ψ(x) = φ_θ(x − g) − φ_θ(0)`` (§4.2), so the goal ``g`` maps to the latent
 origin for every ``θ``. On the latent space the motion is a straight line to the origin: the
 negative gradient of a simple potential ``Φ̄`` whose only stationary point is the origin (§4.3.1,
 "Diffeomorphism parameterization"). The latent velocity is pulled back to ``x`` by the
@@ -44,262 +44,32 @@ lane of a batch; observed ~1e-7), which the norm potential's gain ``1/ε`` near 
 turn into ``‖ẋ(g)‖ ~ 1e-5``; :meth:`FlowField.velocity` therefore returns exactly ``0`` where
 ``x = g`` exactly (the value of (*) there for every ``θ``).
 
-**Training** (docs/design.md §4.6; :class:`LfdConfig` defaults): regress the demonstrated velocities
-with the SmoothL1 loss (PyTorch's, ``β = 1``, mean over all coordinates), Adam with learning rate
-``1e-4`` and L2 weight decay ``1e-10`` added to the gradient (PyTorch ``Adam(weight_decay=…)``,
-not AdamW), gradient-norm clip ``0.1`` applied first, full batch, up to 5000 iterations
-(full-batch epochs), early stop after 250 iterations without improvement of the training loss;
-the parameters with the lowest loss are returned. Only ``variables["params"]`` is trained; the
-random Fourier features in ``variables["constants"]`` stay fixed.
-
-The training loop is one ``lax.scan`` over gradient steps, a pure function of explicit arrays, so
-it jits and ``vmap``s over seeds and over shapes stacked along a leading axis (all LASA shapes
-have the same sizes)::
-
-    config = LfdConfig()                      # docs/design.md §4.6 defaults; LfdConfig.tiny() for tests
-    trainer = make_train(config)              # dim=2
-    result = jax.jit(trainer.train)(key, demos, velocities)       # demos (7, 235, 2)
-    results = jax.jit(jax.vmap(trainer.train))(keys, D, V)        # shapes stacked: D (S, 7, 235, 2)
-    xs = rollout(trainer.field, result.variables, demos[:, 0], 234, dt, method="latent")
-    #    (7, 235, 2): in latent coordinates, monotone in ‖ψ‖ (see rollout)
-
-**Speed.** One full-batch epoch of the reference settings (10 coupling layers × 200 features,
-``7 × 235`` samples) is dominated on XLA:CPU by the ``≈ 1.3·10⁷`` cosines and sines of the
-random features and their derivatives, which XLA:CPU lowers to scalar library calls.
-``LfdConfig.fast_cos`` (default) evaluates the features with :func:`fast_cos` (elementwise
-polynomials, same values to ~1e-7) through a flax method interceptor, without changing
-:mod:`mjxrmp.learned.flows`; with Cramer's rule for the ``2 × 2`` solve this cuts the epoch from
-≈ 200 ms to ≈ 70 ms on 2 CPU cores (``python scripts/lfd_lasa.py --time-epochs 30``).
-
-For progress output run the same compiled step in chunks: ``state = trainer.init(key, x, v)``
-then repeatedly ``state, losses = trainer.run(state, x, v, num_steps)`` (``num_steps`` static),
-and finally ``trainer.result(state, all_losses)``. Early stopping freezes the parameters (the
-scan keeps its static length; under ``vmap`` each member stops on its own).
+Training is :mod:`agents.lfd.flow_training`; the settings are :class:`agents.lfd.config.LfdConfig`
+(docs/design.md §4.6 defaults), with :func:`agents.lfd.fast_trig.fast_cos` features by default.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
-from collections.abc import Callable, Sequence
-from typing import Any, NamedTuple
+from collections.abc import Sequence
+from typing import Any
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
-from mjxrmp.data.lasa import check_demonstrations
-from mjxrmp.learned.flows import ACTIVATIONS, CONSTANTS, EuclideanizingFlow, RandomFourierFeatures
+from agents.lfd.config import INTEGRATORS, SPEED_ACTIVATIONS, LfdConfig
+from agents.lfd.fast_trig import fast_features
+from mjxrmp.config import check_choice, check_float, check_fraction, check_int
+from mjxrmp.learned.flows import CONSTANTS, EuclideanizingFlow
 
-__all__ = [
-    "INTEGRATORS",
-    "LATENT_POTENTIALS",
-    "LOSSES",
-    "FlowField",
-    "LfdConfig",
-    "LfdResult",
-    "SpeedNet",
-    "TrainState",
-    "Trainer",
-    "arrival_steps",
-    "early_stop_update",
-    "fast_cos",
-    "fast_sin",
-    "finite_difference_velocities",
-    "latent_step",
-    "make_train",
-    "regularised_adam",
-    "rollout",
-    "train_batched",
-]
-
-LATENT_POTENTIALS = ("norm", "quadratic")
-LOSSES = ("smooth_l1", "mse")
-INTEGRATORS = ("latent", "euler", "rk4")
-SPEED_ACTIVATIONS: dict[str, Callable[[jax.Array], jax.Array]] = {
-    **ACTIVATIONS, "leaky_relu": jax.nn.leaky_relu}
+__all__ = ["FlowField", "SpeedNet", "arrival_steps", "latent_step", "rollout"]
 
 #: Positive floor added to the learned speed ``exp(h)`` (the original implementation's ``eps``):
 #: keeps ``s > 0`` even where ``exp`` underflows in float32.
 SPEED_FLOOR = 1e-12
-
-
-def _positive_int(value: Any, name: str, allow_none: bool = False) -> None:
-    if value is None and allow_none:
-        return
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        extra = " or None" if allow_none else ""
-        raise ValueError(f"LfdConfig.{name} must be an int >= 1{extra}, got {value!r}")
-
-
-def _positive_float(value: Any, name: str, allow_zero: bool = False,
-                    allow_none: bool = False) -> None:
-    if value is None and allow_none:
-        return
-    ok = isinstance(value, (int, float, np.floating)) and not isinstance(value, bool) \
-        and math.isfinite(value) and (value >= 0 if allow_zero else value > 0)
-    if not ok:
-        bound = ">= 0" if allow_zero else "> 0"
-        extra = " or None" if allow_none else ""
-        raise ValueError(f"LfdConfig.{name} must be a finite number {bound}{extra}, "
-                         f"got {value!r}")
-
-
-@dataclasses.dataclass(frozen=True)
-class LfdConfig:
-    """Model and training settings; defaults are the thesis' and docs/design.md §4.6 values.
-
-    Flow (§4.2.2): ``num_layers`` coupling layers of ``num_features`` random Fourier features
-    with ``length_scale`` (``normalize_features``: eq 4.5's ``√(2/N)`` factor, off as in the
-    original implementation, for which the learning rate was tuned). Field (module docstring):
-    ``latent_potential`` (``"norm"`` or ``"quadratic"``), ``potential_eps`` (smoothing radius of
-    the norm potential), ``scale_velocity`` with ``speed_hidden``/``speed_activation`` and the
-    floor ``speed_min`` of the learned speed (module docstring; ``0``: the original). Training:
-    ``loss`` (``"smooth_l1"`` with ``smooth_l1_beta``, or ``"mse"``), Adam ``learning_rate``,
-    ``weight_decay`` (L2 on the gradient), ``max_grad_norm`` (``None``: no clipping),
-    ``iterations``, ``batch_size`` (``None``: full batch; else a random subset without
-    replacement each step), ``patience`` (early stop; ``None``: never). ``integrator`` is the
-    ``method`` of :func:`rollout` that ``scripts/lfd_lasa.py`` uses (default ``"latent"``: in the
-    latent coordinates, convergent for every start and step; ``"euler"`` is explicit Euler in
-    ``x``, consistent with the forward-difference velocity targets).
-    """
-
-    num_layers: int = 10
-    num_features: int = 200
-    length_scale: float = 0.45
-    normalize_features: bool = False
-    latent_potential: str = "norm"
-    potential_eps: float = 1e-2
-    scale_velocity: bool = True
-    speed_hidden: tuple[int, ...] = (100, 100)
-    speed_activation: str = "leaky_relu"
-    speed_min: float = 0.1
-    loss: str = "smooth_l1"
-    smooth_l1_beta: float = 1.0
-    learning_rate: float = 1e-4
-    weight_decay: float = 1e-10
-    max_grad_norm: float | None = 0.1
-    iterations: int = 5000
-    batch_size: int | None = None
-    patience: int | None = 250
-    integrator: str = "latent"
-    fast_cos: bool = True
-
-    def __post_init__(self) -> None:
-        _positive_int(self.num_layers, "num_layers")
-        _positive_int(self.num_features, "num_features")
-        _positive_float(self.length_scale, "length_scale")
-        if self.latent_potential not in LATENT_POTENTIALS:
-            raise ValueError(f"LfdConfig.latent_potential must be one of {LATENT_POTENTIALS}, "
-                             f"got {self.latent_potential!r}")
-        _positive_float(self.potential_eps, "potential_eps")
-        if not (isinstance(self.speed_min, (int, float)) and not isinstance(self.speed_min, bool)
-                and 0.0 <= self.speed_min < 1.0):
-            raise ValueError(f"LfdConfig.speed_min must be a number in [0, 1), "
-                             f"got {self.speed_min!r}")
-        if not isinstance(self.speed_hidden, tuple):
-            object.__setattr__(self, "speed_hidden", tuple(self.speed_hidden))
-        for h in self.speed_hidden:
-            _positive_int(h, "speed_hidden entries")
-        if self.speed_activation not in SPEED_ACTIVATIONS:
-            raise ValueError(f"LfdConfig.speed_activation must be one of "
-                             f"{sorted(SPEED_ACTIVATIONS)}, got {self.speed_activation!r}")
-        if self.loss not in LOSSES:
-            raise ValueError(f"LfdConfig.loss must be one of {LOSSES}, got {self.loss!r}")
-        _positive_float(self.smooth_l1_beta, "smooth_l1_beta")
-        _positive_float(self.learning_rate, "learning_rate")
-        _positive_float(self.weight_decay, "weight_decay", allow_zero=True)
-        _positive_float(self.max_grad_norm, "max_grad_norm", allow_none=True)
-        _positive_int(self.iterations, "iterations")
-        _positive_int(self.batch_size, "batch_size", allow_none=True)
-        _positive_int(self.patience, "patience", allow_none=True)
-        if self.integrator not in INTEGRATORS:
-            raise ValueError(f"LfdConfig.integrator must be one of {INTEGRATORS}, "
-                             f"got {self.integrator!r}")
-
-    @classmethod
-    def tiny(cls, **overrides: Any) -> LfdConfig:
-        """A seconds-scale preset for tests: 2 coupling layers of 16 features, speed MLP
-        ``(16, 16)``, 60 full-batch iterations at learning rate ``1e-2`` (so that the field moves
-        visibly away from the identity in few steps), no early stop."""
-        base: dict[str, Any] = dict(num_layers=2, num_features=16, speed_hidden=(16, 16),
-                                    learning_rate=1e-2, iterations=60, patience=None)
-        base.update(overrides)
-        return cls(**base)
-
-    def replace(self, **changes: Any) -> LfdConfig:
-        return dataclasses.replace(self, **changes)
-
-
-# Cody–Waite split of π/2 (the first two parts have few significant bits, so ``q·part`` is
-# exact in float32 for |q| < 2¹²) and the Taylor coefficients of sin and cos on [−π/4, π/4].
-_PIO2 = (1.5703125, 4.837512969970703125e-4, math.pi / 2 - 1.5703125 - 4.837512969970703125e-4)
-_SIN_COEFFS = tuple((-1) ** k / math.factorial(2 * k + 1) for k in range(5))
-_COS_COEFFS = tuple((-1) ** k / math.factorial(2 * k) for k in range(6))
-
-
-def _horner(coeffs: tuple[float, ...], x: jax.Array) -> jax.Array:
-    """``Σ_k coeffs[k]·x^k`` by Horner's rule (unrolled: one fused elementwise kernel)."""
-    acc = jnp.full_like(x, coeffs[-1])
-    for c in coeffs[-2::-1]:
-        acc = acc * x + c
-    return acc
-
-
-def _cos_quadrant(u: jax.Array, shift: int) -> jax.Array:
-    """``cos(u − shift·π/2)`` by quadrant reduction ``u = q·π/2 + r``, ``|r| ≤ π/4``, and
-    polynomials of degree 9 (sin) and 10 (cos) in ``r`` (truncation error < 3e-8). Float64
-    input (``shift`` 0 or 1) gets the library functions (float64 is used for references)."""
-    if u.dtype == jnp.float64:
-        return jnp.sin(u) if shift else jnp.cos(u)
-    q = jnp.round(u * (2.0 / math.pi))
-    r = u - q * _PIO2[0] - q * _PIO2[1] - q * _PIO2[2]
-    r2 = r * r
-    sin_r = r * _horner(_SIN_COEFFS, r2)
-    cos_r = _horner(_COS_COEFFS, r2)
-    k = q.astype(jnp.int32) - shift
-    v = jnp.where((k & 1) == 0, cos_r, sin_r)
-    return jnp.where(((k + 1) & 2) == 0, v, -v)
-
-
-@jax.custom_jvp
-def fast_cos(u: jax.Array) -> jax.Array:
-    """``cos(u)`` from elementwise polynomials (vectorised on every backend), absolute error
-    ≲ 1e-7 in float32 for ``|u| ≲ 10³`` (the random-feature arguments ``αᵀz + β`` of eq 4.5);
-    derivatives ``−sin``/``−cos`` through :func:`fast_sin`. Equals ``jnp.cos`` in value; on
-    XLA:CPU ``jnp.cos``/``jnp.sin`` are scalar library calls, ~8× slower."""
-    return _cos_quadrant(u, 0)
-
-
-@jax.custom_jvp
-def fast_sin(u: jax.Array) -> jax.Array:
-    """``sin(u) = cos(u − π/2)`` with the quadrant shifted exactly (as :func:`fast_cos`)."""
-    return _cos_quadrant(u, 1)
-
-
-fast_cos.defjvp(lambda primals, tangents: (fast_cos(primals[0]),
-                                           -fast_sin(primals[0]) * tangents[0]))
-fast_sin.defjvp(lambda primals, tangents: (fast_sin(primals[0]),
-                                           fast_cos(primals[0]) * tangents[0]))
-
-
-def _fast_features(next_fun, args, kwargs, context):
-    """Flax method interceptor: :class:`mjxrmp.learned.flows.RandomFourierFeatures` evaluated with
-    :func:`fast_cos` (its formula ``c·cos(zα + β)ᵀw``, eq 4.5, on its own variables); every
-    other call, and initialisation, passes through."""
-    module = context.module
-    if not (isinstance(module, RandomFourierFeatures) and context.method_name == "__call__"
-            and module.has_variable(CONSTANTS, "alpha") and module.has_variable("params", "w")):
-        return next_fun(*args, **kwargs)
-    (z,) = args
-    features = fast_cos(z @ module.get_variable(CONSTANTS, "alpha")
-                        + module.get_variable(CONSTANTS, "beta"))
-    if module.normalize:
-        features = features * math.sqrt(2.0 / module.num_features)
-    return features @ module.get_variable("params", "w")
 
 
 class SpeedNet(nn.Module):
@@ -333,13 +103,13 @@ class FlowField:
     config: LfdConfig = dataclasses.field(default_factory=LfdConfig)
 
     def __post_init__(self) -> None:
-        if isinstance(self.dim, bool) or not isinstance(self.dim, int) or self.dim < 2:
-            raise ValueError(f"FlowField.dim must be an int >= 2, got {self.dim!r}")
+        check_int(self.dim, "FlowField.dim", 2)
         if not isinstance(self.config, LfdConfig):
             raise TypeError(f"FlowField.config must be an LfdConfig, got {type(self.config)}")
 
     @property
     def flow(self) -> EuclideanizingFlow:
+        """The Euclideanizing flow ``φ_θ`` of the configuration (§4.2.2)."""
         c = self.config
         return EuclideanizingFlow(dim=self.dim, num_layers=c.num_layers,
                                   num_features=c.num_features, length_scale=c.length_scale,
@@ -347,6 +117,7 @@ class FlowField:
 
     @property
     def speed_net(self) -> SpeedNet:
+        """The network of ``log s(x)`` (module docstring)."""
         return SpeedNet(hidden=self.config.speed_hidden, activation=self.config.speed_activation)
 
     def init(self, key: jax.Array) -> dict:
@@ -369,11 +140,11 @@ class FlowField:
         return out
 
     def _apply_flow(self, fv: dict, z: jax.Array, method: str | None = None) -> jax.Array:
-        """``φ(z)`` (or ``φ⁻¹(z)`` for ``method="inverse"``), with :func:`fast_cos` features
-        if ``config.fast_cos``."""
+        """``φ(z)`` (or ``φ⁻¹(z)`` for ``method="inverse"``), with
+        :func:`agents.lfd.fast_trig.fast_cos` features if ``config.fast_cos``."""
         if not self.config.fast_cos:
             return self.flow.apply(fv, z, method=method)
-        with nn.intercept_methods(_fast_features):
+        with nn.intercept_methods(fast_features):
             return self.flow.apply(fv, z, method=method)
 
     def _check(self, x: jax.Array) -> jax.Array:
@@ -461,202 +232,6 @@ class FlowField:
         return xd
 
 
-# ---------------------------------------------------------------------------------------------
-# Training
-# ---------------------------------------------------------------------------------------------
-
-
-class TrainState(NamedTuple):
-    """Everything the training scan carries (a pytree; ``vmap`` adds leading axes)."""
-
-    step: jax.Array          # () int32, gradient steps taken (frozen steps included)
-    params: Any
-    constants: Any
-    opt_state: Any
-    best_params: Any
-    best_loss: jax.Array     # () lowest loss seen (loss of best_params on its batch)
-    best_step: jax.Array     # () int32, the step at which best_params were evaluated
-    since_best: jax.Array    # () int32
-    stopped: jax.Array       # () bool, early stop reached: params frozen since
-    key: jax.Array           # minibatch sampling key
-
-
-class LfdResult(NamedTuple):
-    """What :meth:`Trainer.train` returns: ``variables`` (the best parameters with the fixed
-    constants, ready for :class:`FlowField` methods), the loss of every iteration ``losses``
-    (``(iterations,)``, evaluated before that iteration's update), ``best_loss``, ``best_step``
-    and ``stopped`` (early stop reached)."""
-
-    variables: dict
-    losses: jax.Array
-    best_loss: jax.Array
-    best_step: jax.Array
-    stopped: jax.Array
-
-
-class Trainer(NamedTuple):
-    """``make_train``'s functions (all pure; jit and vmap them as needed).
-
-    ``init(key, x, v) -> TrainState``; ``run(state, x, v, num_steps) -> (state, losses)`` with
-    ``num_steps`` static; ``result(state, losses) -> LfdResult``; ``train(key, x, v) ->
-    LfdResult`` = init, ``run`` for ``config.iterations``, result. ``x`` and ``v`` are positions
-    and velocity targets of equal shape ``(..., dim)`` (e.g. demos ``(N, T, dim)``); every
-    sample is one regression pair.
-    """
-
-    field: FlowField
-    config: LfdConfig
-    init: Callable[..., TrainState]
-    run: Callable[..., tuple[TrainState, jax.Array]]
-    result: Callable[..., LfdResult]
-    train: Callable[..., LfdResult]
-
-
-def finite_difference_velocities(demos: jax.Array, dt: float | jax.Array) -> jax.Array:
-    """Velocity targets ``(x_{t+1} − x_t)/dt`` with zero at the last sample, ``demos (..., T, d)``
-    (as :attr:`mjxrmp.data.lasa.LasaShape.velocities`: explicit Euler with the same ``dt``
-    reproduces a demonstration whose velocities are fitted exactly)."""
-    _check_data(demos, "demos")
-    demos = jnp.asarray(demos)
-    vel = jnp.diff(demos, axis=-2) / dt
-    return jnp.concatenate([vel, jnp.zeros_like(demos[..., :1, :])], axis=-2)
-
-
-def _check_data(x: Any, name: str, dim: int | None = None) -> None:
-    """:func:`mjxrmp.data.lasa.check_demonstrations` on concrete arrays (NaN/inf, fewer than 2
-    samples, wrong dimension → ``ValueError`` naming ``name``); traced values (inside ``jit``)
-    can only be checked for their shape."""
-    if isinstance(x, jax.core.Tracer):
-        if x.ndim < 2 or x.shape[-2] < 2 or (dim is not None and x.shape[-1] != dim):
-            raise ValueError(f"{name} must have shape (..., T >= 2, {dim or 'd'}), "
-                             f"got {x.shape}")
-        return
-    check_demonstrations(x, name, dim=dim)
-
-
-def _smooth_l1(err: jax.Array, beta: float) -> jax.Array:
-    a = jnp.abs(err)
-    return jnp.where(a < beta, 0.5 * err * err / beta, a - 0.5 * beta)
-
-
-def early_stop_update(loss: jax.Array, params: Any, best_params: Any, best_loss: jax.Array,
-                      since_best: jax.Array, stopped: jax.Array, patience: int | None
-                      ) -> tuple[jax.Array, Any, jax.Array, jax.Array, jax.Array, jax.Array]:
-    """One step of the early-stop rule of the LASA reference code (docs/design.md §4.6), shared by
-    :func:`make_train` and :mod:`agents.lfd.strategies`: ``loss`` of ``params`` improves on
-    ``best_loss`` (never when not finite) → new best; ``move`` says whether this step's update
-    may be applied (finite loss, not yet stopped); after ``patience`` steps without improvement
-    ``stopped`` turns True (never with ``patience=None``). Returns ``(improved, best_params,
-    best_loss, since_best, move, stopped)``."""
-    improved = loss < best_loss
-    best_params = jax.tree.map(lambda a, b: jnp.where(improved, a, b), params, best_params)
-    since = jnp.where(improved, 0, since_best + 1)
-    move = jnp.logical_and(jnp.isfinite(loss), ~stopped)
-    if patience is not None:
-        stopped = jnp.logical_or(stopped, since >= patience)
-    return improved, best_params, jnp.where(improved, loss, best_loss), since, move, stopped
-
-
-def regularised_adam(learning_rate: float, weight_decay: float,
-                     max_grad_norm: float | None) -> optax.GradientTransformation:
-    """The LfD trainers' optimiser: global-norm gradient clipping (when ``max_grad_norm`` is
-    given), then decoupled weight decay (when ``weight_decay > 0``), then Adam."""
-    chain = []
-    if max_grad_norm is not None:
-        chain.append(optax.clip_by_global_norm(max_grad_norm))
-    if weight_decay > 0:
-        chain.append(optax.add_decayed_weights(weight_decay))
-    chain.append(optax.adam(learning_rate))
-    return optax.chain(*chain)
-
-
-def make_train(config: LfdConfig | None = None, dim: int = 2) -> Trainer:
-    """Build the training functions of a :class:`FlowField` for ``config`` (module docstring)."""
-    config = LfdConfig() if config is None else config
-    if not isinstance(config, LfdConfig):
-        raise TypeError(f"config must be an LfdConfig, got {type(config)}")
-    field = FlowField(dim=dim, config=config)
-
-    tx = regularised_adam(config.learning_rate, config.weight_decay, config.max_grad_norm)
-
-    def loss_fn(params, constants, x, v):
-        pred = field.velocity({"params": params, CONSTANTS: constants}, x)
-        err = pred - v
-        if config.loss == "mse":
-            return jnp.mean(err * err)
-        return jnp.mean(_smooth_l1(err, config.smooth_l1_beta))
-
-    def flat_data(x, v):
-        _check_data(x, "positions x", dim)
-        _check_data(v, "velocities v", dim)
-        if jnp.shape(x) != jnp.shape(v):
-            raise ValueError(f"positions x {jnp.shape(x)} and velocities v {jnp.shape(v)} "
-                             f"must have the same shape (..., T, {dim})")
-        x = jnp.asarray(x, jnp.float32)
-        v = jnp.asarray(v, jnp.float32)
-        x = x.reshape((-1, dim))
-        if config.batch_size is not None and config.batch_size > x.shape[0]:
-            raise ValueError(f"LfdConfig.batch_size={config.batch_size} exceeds the number of "
-                             f"samples {x.shape[0]}")
-        return x, v.reshape((-1, dim))
-
-    def init(key, x, v) -> TrainState:
-        flat_data(x, v)  # validate
-        k_init, k_data = jax.random.split(key)
-        variables = field.init(k_init)
-        params = variables["params"]
-        return TrainState(
-            step=jnp.zeros((), jnp.int32), params=params, constants=variables[CONSTANTS],
-            opt_state=tx.init(params), best_params=params,
-            best_loss=jnp.asarray(jnp.inf, jnp.float32), best_step=jnp.zeros((), jnp.int32),
-            since_best=jnp.zeros((), jnp.int32), stopped=jnp.zeros((), bool), key=k_data)
-
-    def step(state: TrainState, x, v) -> tuple[TrainState, jax.Array]:
-        key, sub = jax.random.split(state.key)
-        if config.batch_size is not None:
-            idx = jax.random.choice(sub, x.shape[0], (config.batch_size,), replace=False)
-            x, v = x[idx], v[idx]
-        loss, grads = jax.value_and_grad(loss_fn)(state.params, state.constants, x, v)
-        improved, best_params, best_loss, since, move, stopped = early_stop_update(
-            loss, state.params, state.best_params, state.best_loss, state.since_best,
-            state.stopped, config.patience)
-        updates, opt_state = tx.update(grads, state.opt_state, state.params)
-        new_params = optax.apply_updates(state.params, updates)
-        keep = lambda new, old: jax.tree.map(  # noqa: E731
-            lambda a, b: jnp.where(move, a, b), new, old)
-        new = TrainState(
-            step=state.step + 1, params=keep(new_params, state.params),
-            constants=state.constants, opt_state=keep(opt_state, state.opt_state),
-            best_params=best_params, best_loss=best_loss,
-            best_step=jnp.where(improved, state.step, state.best_step), since_best=since,
-            stopped=stopped, key=key)
-        return new, loss
-
-    def run(state: TrainState, x, v, num_steps: int) -> tuple[TrainState, jax.Array]:
-        if isinstance(num_steps, bool) or not isinstance(num_steps, (int, np.integer)) \
-                or num_steps < 1:
-            raise ValueError(f"num_steps must be a static int >= 1, got {num_steps!r}")
-        x, v = flat_data(x, v)
-        return jax.lax.scan(lambda s, _: step(s, x, v), state, None, length=int(num_steps))
-
-    def result(state: TrainState, losses: jax.Array) -> LfdResult:
-        # The best parameters seen so far; if the final parameters were never evaluated (the
-        # last step's update), they are not considered — the usual "best checkpoint" rule.
-        variables = {"params": state.best_params, CONSTANTS: state.constants}
-        return LfdResult(variables, losses, state.best_loss, state.best_step, state.stopped)
-
-    def train(key, x, v) -> LfdResult:
-        state = init(key, x, v)
-        state, losses = run(state, x, v, config.iterations)
-        return result(state, losses)
-
-    return Trainer(field, config, init, run, result, train)
-
-
-# ---------------------------------------------------------------------------------------------
-# Rollouts
-# ---------------------------------------------------------------------------------------------
-
 
 def latent_step(field: FlowField, variables: dict, y: jax.Array, x: jax.Array,
                 dt: float | jax.Array, goal: jax.Array | None = None) -> jax.Array:
@@ -687,8 +262,7 @@ def arrival_steps(config: LfdConfig, latent_norms: Any, dt: Any, shrink: float =
     if not config.speed_min > 0.0:
         raise ValueError(f"arrival_steps needs LfdConfig.speed_min > 0, got {config.speed_min!r}:"
                          f" without the speed floor no arrival time is guaranteed")
-    if not 0.0 < shrink < 1.0:
-        raise ValueError(f"shrink must lie in (0, 1), got {shrink!r}")
+    check_fraction(shrink, "shrink")
     r0 = np.asarray(latent_norms, np.float64)
     h = np.asarray(dt, np.float64)
     if not (np.all(np.isfinite(r0)) and np.all(r0 >= 0.0)):
@@ -729,13 +303,10 @@ def rollout(field: FlowField, variables: dict, x0: jax.Array, num_steps: int,
     integrate ``ẋ = field.velocity(x)`` directly; far from the data, where ``J_φ`` may be
     ill-conditioned, a step of ``J_φ⁻¹ẏ`` can overshoot by far and diverge.
     """
-    if method not in INTEGRATORS:
-        raise ValueError(f"method must be one of {INTEGRATORS}, got {method!r}")
-    if isinstance(num_steps, bool) or not isinstance(num_steps, (int, np.integer)) \
-            or num_steps < 1:
-        raise ValueError(f"num_steps must be a static int >= 1, got {num_steps!r}")
-    if isinstance(dt, (int, float)) and not (math.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt must be finite and > 0, got {dt!r}")
+    check_choice(method, "method", INTEGRATORS)
+    check_int(num_steps, "num_steps (static)")
+    if isinstance(dt, (int, float)):
+        check_float(dt, "dt")
     x0 = field._check(x0)
     dt = jnp.asarray(dt, x0.dtype)
     f = lambda x: field.velocity(variables, x, goal)  # noqa: E731
@@ -766,58 +337,3 @@ def rollout(field: FlowField, variables: dict, x0: jax.Array, num_steps: int,
     xs = jnp.concatenate([x0[None], xs], axis=0)          # (num_steps + 1, ..., dim)
     return jnp.moveaxis(xs, 0, -2)
 
-
-# ---------------------------------------------------------------------------------------------
-# Batched training in compiled chunks (seeds or shapes along a leading axis)
-# ---------------------------------------------------------------------------------------------
-
-
-@functools.lru_cache(maxsize=16)
-def _batched_program(config: LfdConfig, dim: int, num_steps: int):
-    """Jitted ``vmap``-ped ``init`` and ``run(·, num_steps)`` for one configuration (cached, so
-    repeated calls with the same configuration, chunk size and array shapes compile once)."""
-    trainer = make_train(config, dim)
-    init = jax.jit(jax.vmap(trainer.init))
-    run = jax.jit(jax.vmap(functools.partial(trainer.run, num_steps=num_steps)))
-    result = jax.jit(jax.vmap(trainer.result))
-    return trainer, init, run, result
-
-
-def train_batched(config: LfdConfig, keys: jax.Array, x: jax.Array, v: jax.Array, *,
-                  dim: int = 2, log_every: int | None = None,
-                  callback: Callable[[int, int, np.ndarray, TrainState], None] | None = None,
-                  ) -> tuple[Trainer, LfdResult]:
-    """Train ``B`` independent fields in one ``vmap``-ped program: ``keys (B, 2)``, ``x`` and
-    ``v (B, ..., dim)`` (seeds: the same data repeated; shapes: stacked demonstrations).
-
-    The ``config.iterations`` steps run as compiled ``lax.scan`` chunks of ``log_every``
-    (default: all at once); after each chunk ``callback(done, total, losses (B, n), state)`` is
-    called on the host (progress output). The result equals ``jax.vmap(trainer.train)`` and
-    every member equals its own ``trainer.train`` run. Returns ``(trainer, result)`` with every
-    leaf of ``result`` carrying the leading axis ``B``.
-    """
-    keys = jnp.asarray(keys)
-    _check_data(x, "positions x", dim)
-    _check_data(v, "velocities v", dim)
-    if keys.ndim != 2 or np.ndim(x) < 3 or np.shape(x)[0] != keys.shape[0] \
-            or np.shape(v) != np.shape(x):
-        raise ValueError(f"keys (B, 2), x and v (B, ..., T, {dim}) of equal shapes need one "
-                         f"leading batch axis B; got keys {keys.shape}, x {np.shape(x)}, "
-                         f"v {np.shape(v)}")
-    x, v = jnp.asarray(x, jnp.float32), jnp.asarray(v, jnp.float32)
-    total = config.iterations
-    chunk = total if log_every is None else int(log_every)
-    if chunk < 1:
-        raise ValueError(f"log_every must be >= 1, got {log_every!r}")
-    trainer, init, _, result = _batched_program(config, dim, chunk)
-    state = init(keys, x, v)
-    done, losses = 0, []
-    while done < total:
-        n = min(chunk, total - done)
-        state, ls = _batched_program(config, dim, n)[2](state, x, v)
-        ls = np.asarray(ls)                              # (B, n); waits for the chunk
-        losses.append(ls)
-        done += n
-        if callback is not None:
-            callback(done, total, ls, state)
-    return trainer, result(state, jnp.asarray(np.concatenate(losses, axis=1)))

@@ -1,17 +1,19 @@
 """The two-step strategy of thesis §5.2: a nominal-demonstration potential, then a learned metric.
 
 Independent per-subtask learning of §5.2 for the three hand control points of the Franka
-(:mod:`agents.lfd.strategies` describes the policy class, the data and the execution). For each
+(:mod:`agents.lfd.policy` describes the policy class, :mod:`agents.lfd.samples` the data and
+:mod:`agents.lfd.execution` the execution). For each
 control point ``k``, in its task space ``x_k = FK_k(q) − g_k`` (§5.2.3; every demonstration is
 expressed relative to its own final point, so it ends at ``x_k = 0``):
 
 1. **Potential from a nominal demonstration** (§5.2.1; host side, float64). Among the fold's
    *training* demonstrations, the nominal ``ζ`` is the one with the least mean DTW distance to
-   the others (:func:`mjxrmp.learned.nominal.select_nominal`); its potential ``Φ_k`` is eq 4.9 with the
-   attractive elements of eq 4.11 and the monotone biases of eq 4.12, solved exactly by
-   :func:`mjxrmp.learned.nominal.fit_nominal_potential` (jitted, in float64, once per distinct nominal;
-   the biases fit the nominal's own forward-difference velocities). The thesis gives no values
-   for ``σ``, ``η``, ``λ``; :class:`NominalSettings` documents the choices.
+   the others (:func:`mjxrmp.learned.nominal_fit.select_nominal`); its potential ``Φ_k`` is eq 4.9
+   with the attractive elements of eq 4.11 and the monotone biases of eq 4.12, solved exactly by
+   :func:`mjxrmp.learned.nominal_fit.fit_nominal_potential` (jitted, in float64, once per distinct
+   nominal; the biases fit the nominal's own forward-difference velocities). The thesis gives no
+   values for ``σ``, ``η``, ``λ``; :class:`agents.lfd.config.NominalSettings` documents the
+   choices.
 2. **Metric by eq 5.6** (§5.2.2; one jittable function). A Cholesky metric ``G_k(x; θ_k)``
    (:class:`mjxrmp.learned.gds.CholeskyMetric`, ``G = I`` at initialisation) is fitted so that the
    natural-gradient velocity reproduces every training demonstration's samples::
@@ -20,7 +22,7 @@ expressed relative to its own final point, so it ends at ``x_k = 0``):
 
    (the eq 5.6 loss ``L`` = SmoothL1, weighted by the fold's sample weights ``w``), by one
    ``lax.scan`` of Adam steps with the optimiser, minibatches and iteration count of the
-   metric stage of :class:`agents.lfd.strategies.StrategyConfig` (``metric_iterations``,
+   metric stage of :class:`agents.lfd.config.StrategyConfig` (``metric_iterations``,
    ``metric_learning_rate``, ``batch_size``, ``weight_decay``, ``max_grad_norm``,
    ``smooth_l1_beta``, ``metric_hidden``). The three fits are ``vmap``-ped over the leaves (so
    they are exactly independent) and :func:`fold_trainer` ``vmap``-s them over folds. ``∇Φ_k``
@@ -39,7 +41,7 @@ enters the resolve with the unit average weight the flow-based strategies' metri
 
 **Execution** (§5.2.3). Leaf ``k`` is the velocity-form RMP ``(G_k/c_k, −G_k⁻¹∇Φ_k)``, i.e. the
 natural pair ``(G_k(x_k)/c_k, −∇Φ_k(x_k)/c_k)`` (:func:`leaf_rmps`); it replaces the flow-based
-learned leaf in :func:`agents.lfd.strategies.policy_velocity` (strategy ``"two_step"``), which adds
+learned leaf in :func:`agents.lfd.execution.policy_velocity` (strategy ``"two_step"``), which adds
 the same default straight-line leaves, resolves eq 5.1 with the same offset ``ε`` and, at execution
 time, adds the same joint-limit, posture and collision leaves as for every other strategy, so that
 ``scripts/lfd_franka.py`` evaluates it unchanged. (The thesis executes the acceleration form, eq
@@ -66,11 +68,12 @@ leaves (``default_weight = 0``, the thesis' §5.2 policy) the drawer error falls
 
 so ``V̇ = ∇Vᵀq̇ = −fᵀ(M + εI)⁻¹f ≤ 0`` for every ``θ`` (``G_k ≻ 0``), with equality only where
 ``f = 0`` (tested at random configurations). The joint-limit and posture leaves of
-:class:`agents.lfd.strategies.ExecutionParams` are gradients of potentials too (their terms add
+:class:`agents.lfd.config.ExecutionParams` are gradients of potentials too (their terms add
 to ``V``); the lifted collision leaves and the clipping of ``q̇`` to the velocity limits are not
 covered by this argument. ``Φ_k`` is bounded below, grows without bound (eq 4.8) and is 0 at
-the goal after the offset of :mod:`mjxrmp.learned.nominal`; that the goal is its *only* stationary point
-is not guaranteed by eqs 4.9–4.12 (the default leaf's convex term dominates far from the data).
+the goal after the offset of :mod:`mjxrmp.learned.nominal`; that the goal is its *only*
+stationary point is not guaranteed by eqs 4.9–4.12 (the default leaf's convex term dominates far
+from the data).
 
 **Fixed shapes.** Nominal demonstrations have different lengths; their potentials are padded
 to the stacked length ``T`` with centres :data:`PAD_DISTANCE` metres from the goal (bias 0).
@@ -91,16 +94,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents.lfd import strategies as L
+from agents.lfd.config import NominalSettings, StrategyConfig
+from agents.lfd.optim import fit, minibatch, regularised_adam, smooth_l1
+from agents.lfd.policy import StrategyResult
+from agents.lfd.samples import Samples, fold_weights, task_coordinates
 from mjxrmp.core.rmp import RMP
 from mjxrmp.data.franka_demos import StackedDemos
 from mjxrmp.learned.nominal import (
     NominalPotential,
-    fit_nominal_potential,
     nominal_potential,
     nominal_potential_gradient,
-    select_nominal,
 )
+from mjxrmp.learned.nominal_fit import fit_nominal_potential, select_nominal
 
 #: Distance (m) from the goal of the centres that pad a nominal potential to a fixed length.
 PAD_DISTANCE = 1e3
@@ -109,7 +114,6 @@ __all__ = [
     "PAD_DISTANCE",
     "MetricData",
     "NominalFit",
-    "NominalSettings",
     "fit_nominal",
     "fold_trainer",
     "leaf_rmps",
@@ -122,47 +126,11 @@ __all__ = [
 ]
 
 
-@dataclasses.dataclass(frozen=True)
-class NominalSettings:
-    """Settings of the eq 4.9–4.12 potential fit (§5.2.1); the thesis gives no values.
-
-    * ``sigma_spacings``: the kernel length-scale ``σ`` (eq 4.9) is this many mean sample
-      spacings of the nominal demonstration (the rule behind the LASA default of
-      :func:`mjxrmp.learned.nominal.fit_nominal_potential`, "σ a few sample spacings"): 2 spacings give
-      ``σ ≈ 2 cm`` on the Franka data at ``dt = 0.1 s`` (spacings ≈ 1 cm). Measured on the DTW
-      nominal of each task (centre point, whole set), the fitted ``−∇Φ(ζ_t)`` matches ``ζ̇_t``
-      with relative error 0.20–0.26 (mean cosine 0.92–0.95) at ``σ = 2 cm``, against 0.24–0.37 at
-      3 cm and 0.85–1.2 at 3 cm with ``η = 50``.
-    * ``eta``: ``η`` of eq 4.11; ``1/η = 10 cm`` is about a tenth of the demonstrated extent
-      (0.4–0.8 m), the rule behind LASA's ``η = 10`` on its unit workspace. Larger values fit
-      worse (relative error 0.5–0.99 at ``η = 50``); ``η`` between 3 and 10 differ by < 0.06.
-    * ``lam``: ``λ`` of eq 4.12, the library default ``1e-3`` (biases come out ≈ 0.1–0.3, so
-      the regulariser is small against the velocity fit).
-    * ``goal_constraint``: handling of ``∇Φ(ζ_T) = 0``, see :func:`mjxrmp.learned.nominal.fit_biases`.
-    """
-
-    sigma_spacings: float = 2.0
-    eta: float = 10.0
-    lam: float = 1e-3
-    goal_constraint: str = "auto"
-
-    def __post_init__(self) -> None:
-        for name in ("sigma_spacings", "eta", "lam"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
-                    or v <= 0:
-                raise ValueError(f"NominalSettings.{name} must be a finite number > 0, "
-                                 f"got {v!r}")
-        if self.goal_constraint not in ("auto", "penalty", "none"):
-            raise ValueError(f"NominalSettings.goal_constraint must be 'auto', 'penalty' or "
-                             f"'none', got {self.goal_constraint!r}")
-
-
 class NominalFit(NamedTuple):
     """The step-1 result of one fold, stacked over the ``K = 3`` leaves: ``potential``
-    (:class:`~mjxrmp.learned.nominal.NominalPotential` with fields of leading shape ``(K,)``, padded to
-    ``T`` centres, float32), ``objective (K,)`` eq 4.12's objective at the fitted biases, and
-    ``index (K,)`` the nominal demonstration's index in the stacked set."""
+    (:class:`~mjxrmp.learned.nominal.NominalPotential` with fields of leading shape ``(K,)``,
+    padded to ``T`` centres, float32), ``objective (K,)`` eq 4.12's objective at the fitted
+    biases, and ``index (K,)`` the nominal demonstration's index in the stacked set."""
 
     potential: NominalPotential
     objective: jax.Array
@@ -179,8 +147,8 @@ class MetricData(NamedTuple):
     w: jax.Array
 
 
-def _check_config(config: L.StrategyConfig) -> None:
-    if not isinstance(config, L.StrategyConfig) or config.strategy != "two_step":
+def _check_config(config: StrategyConfig) -> None:
+    if not isinstance(config, StrategyConfig) or config.strategy != "two_step":
         raise ValueError(f"config must be a StrategyConfig with strategy='two_step', "
                          f"got {config!r}")
 
@@ -210,7 +178,7 @@ def pad_potential(p: NominalPotential, length: int) -> NominalPotential:
 
 
 def fit_nominal(demos: StackedDemos, train: Any,
-                settings: NominalSettings = NominalSettings()) -> NominalFit:
+                settings: NominalSettings | None = None) -> NominalFit:
     """Step 1 for one fold (§5.2.1): per control point ``k``, the DTW nominal of the training
     demonstrations (``train (N,)`` bool) in ``x_k = FK_k − g_k`` and its eq 4.9–4.12 potential.
 
@@ -218,6 +186,7 @@ def fit_nominal(demos: StackedDemos, train: Any,
     per nominal length). Returns the potentials padded to the stacked length and cast to
     float32 (:class:`NominalFit`).
     """
+    settings = NominalSettings() if settings is None else settings
     if not isinstance(settings, NominalSettings):
         raise ValueError(f"settings must be a NominalSettings, got {type(settings)}")
     train = np.asarray(train, bool)
@@ -257,16 +226,16 @@ def fit_nominal(demos: StackedDemos, train: Any,
 # ---------------------------------------------------------------------------------------------
 
 
-def metric_loss(config: L.StrategyConfig, params: Any, data: MetricData) -> jax.Array:
+def metric_loss(config: StrategyConfig, params: Any, data: MetricData) -> jax.Array:
     """The eq 5.6 loss of one leaf: weighted mean over samples of the coordinate-mean
     ``SmoothL1_β(−G(x; θ)⁻¹∇Φ(x) − ẋ_demo)`` (``G⁻¹`` by a Cholesky solve of ``G = LLᵀ + εI``)."""
     G = config.metric.apply({"params": params}, data.x)                     # (S, m, m)
     pred = -jax.scipy.linalg.cho_solve((jnp.linalg.cholesky(G), True), data.grad[..., None])
-    per = jnp.mean(L._smooth_l1(pred[..., 0] - data.xd, config.smooth_l1_beta), axis=-1)
+    per = jnp.mean(smooth_l1(pred[..., 0] - data.xd, config.smooth_l1_beta), axis=-1)
     return jnp.sum(data.w * per) / jnp.maximum(jnp.sum(data.w), 1.0)
 
 
-def metric_scale(config: L.StrategyConfig, params: Any, x: jax.Array, w: jax.Array
+def metric_scale(config: StrategyConfig, params: Any, x: jax.Array, w: jax.Array
                  ) -> jax.Array:
     """The importance normalisation ``c`` of one leaf: the ``w``-weighted mean over the samples
     ``x (S, m)`` of ``tr G(x; θ)/m`` (module docstring, "Importance")."""
@@ -275,11 +244,11 @@ def metric_scale(config: L.StrategyConfig, params: Any, x: jax.Array, w: jax.Arr
     return jnp.sum(w * per) / jnp.maximum(jnp.sum(w), 1e-12)
 
 
-def make_train(config: L.StrategyConfig
-               ) -> Callable[[jax.Array, L.Samples, NominalFit], L.StrategyResult]:
+def make_train(config: StrategyConfig
+               ) -> Callable[[jax.Array, Samples, NominalFit], StrategyResult]:
     """``train(key, samples, nominal) -> StrategyResult`` (step 2, eq 5.6): the three metrics
     initialised at ``I`` from ``key`` and fitted independently (``vmap`` over leaves) on
-    ``samples`` (:func:`agents.lfd.strategies.make_samples` of a ``"two_step"`` config; the
+    ``samples`` (:func:`agents.lfd.samples.make_samples` of a ``"two_step"`` config; the
     fold is selected by ``samples.w``) against the potentials of ``nominal`` (step 1). Pure and
     jittable; ``vmap`` it over folds.
 
@@ -291,9 +260,9 @@ def make_train(config: L.StrategyConfig
     """
     _check_config(config)
     K, m = config.num_leaves, config.leaf_dim
-    tx = L._optimizer(config, config.metric_learning_rate)
+    tx = regularised_adam(config.metric_learning_rate, config.weight_decay, config.max_grad_norm)
 
-    def train(key: jax.Array, samples: L.Samples, nominal: NominalFit) -> L.StrategyResult:
+    def train(key: jax.Array, samples: Samples, nominal: NominalFit) -> StrategyResult:
         S = samples.w.shape[0]
         if samples.x.shape != (S, K, m) or samples.xd.shape != (S, K, m):
             raise ValueError(f"samples.x and samples.xd must have shape {(S, K, m)}, got "
@@ -308,47 +277,47 @@ def make_train(config: L.StrategyConfig
             k_init, k_fit = jax.random.split(k)
             p0 = config.metric.init(k_init, jnp.zeros((m,), jnp.float32))["params"]
             data = MetricData(x, g, xd, samples.w)
-            return L._fit(lambda p, kb: metric_loss(config, p, L._minibatch(
+            return fit(lambda p, kb: metric_loss(config, p, minibatch(
                 data, kb, config.batch_size)), p0, tx, config.metric_iterations, k_fit)
 
         params, losses = jax.vmap(leaf, in_axes=(0, 1, 1, 1))(
             jax.random.split(key, K), samples.x, grad, samples.xd)
         scale = jax.vmap(lambda p, x: metric_scale(config, p, x, samples.w),
                          in_axes=(0, 1))(params, samples.x)
-        return L.StrategyResult({"metric": params, "scale": scale}, nominal.potential,
+        return StrategyResult({"metric": params, "scale": scale}, nominal.potential,
                                 jnp.mean(nominal.objective)[None], jnp.mean(losses, axis=0))
 
     return train
 
 
 @functools.lru_cache(maxsize=8)
-def fold_trainer(config: L.StrategyConfig
-                 ) -> Callable[[jax.Array, L.Samples, jax.Array, NominalFit], L.StrategyResult]:
+def fold_trainer(config: StrategyConfig
+                 ) -> Callable[[jax.Array, Samples, jax.Array, NominalFit], StrategyResult]:
     """``train(keys (F, 2), samples, weights (F, S), nominal) -> StrategyResult`` with a leading
     ``F``: :func:`make_train` jitted and ``vmap``-ped over folds (keys, sample weights and the
     folds' stacked :class:`NominalFit`), cached per configuration."""
     train_one = make_train(config)
 
     def train(keys, samples, weights, nominal):
-        return jax.vmap(train_one, in_axes=(0, L.Samples(None, None, None, None, 0), 0))(
+        return jax.vmap(train_one, in_axes=(0, Samples(None, None, None, None, 0), 0))(
             keys, samples._replace(w=weights), nominal)
 
     return jax.jit(train)
 
 
-def train_folds(config: L.StrategyConfig, demos: StackedDemos, samples: L.Samples,
+def train_folds(config: StrategyConfig, demos: StackedDemos, samples: Samples,
                 train_sets: Any, keys: jax.Array,
-                settings: NominalSettings = NominalSettings()
-                ) -> tuple[L.StrategyResult, NominalFit]:
+                settings: NominalSettings | None = None
+                ) -> tuple[StrategyResult, NominalFit]:
     """Both steps for every fold: step 1 per fold on the host (:func:`fit_nominal`, ``train_sets
     (F, N)`` bool), step 2 for all folds in one compiled program (:func:`fold_trainer`, sample
-    weights :func:`agents.lfd.strategies.fold_weights`). Returns the stacked
-    :class:`~agents.lfd.strategies.StrategyResult` and the folds' :class:`NominalFit`."""
+    weights :func:`agents.lfd.samples.fold_weights`). Returns the stacked
+    :class:`~agents.lfd.policy.StrategyResult` and the folds' :class:`NominalFit`."""
     _check_config(config)
     train_sets = np.asarray(train_sets, bool)
     nominal = [fit_nominal(demos, tr, settings) for tr in train_sets]
     nominal = jax.tree.map(lambda *a: jnp.stack(a), *nominal)
-    weights = jax.vmap(lambda tr: L.fold_weights(demos.mask, tr))(jnp.asarray(train_sets))
+    weights = jax.vmap(lambda tr: fold_weights(demos.mask, tr))(jnp.asarray(train_sets))
     return fold_trainer(config)(keys, samples, weights, nominal), nominal
 
 
@@ -357,7 +326,7 @@ def train_folds(config: L.StrategyConfig, demos: StackedDemos, samples: L.Sample
 # ---------------------------------------------------------------------------------------------
 
 
-def leaf_rmps(config: L.StrategyConfig, result: L.StrategyResult, x: jax.Array) -> RMP:
+def leaf_rmps(config: StrategyConfig, result: StrategyResult, x: jax.Array) -> RMP:
     """The learned leaves at task coordinates ``x (K, m)``: the natural pairs
     ``(G_k(x_k)/c_k, −∇Φ_k(x_k)/c_k)`` of the velocity-form RMPs ``(G_k/c_k, −G_k⁻¹∇Φ_k)``
     (§5.2, eq 5.1; ``c_k`` the importance normalisation, module docstring)."""
@@ -367,10 +336,10 @@ def leaf_rmps(config: L.StrategyConfig, result: L.StrategyResult, x: jax.Array) 
     return RMP(G / c, -jax.vmap(nominal_potential_gradient)(result.constants, x) / c[..., 0])
 
 
-def lyapunov(config: L.StrategyConfig, result: L.StrategyResult, q: jax.Array,
+def lyapunov(config: StrategyConfig, result: StrategyResult, q: jax.Array,
              goals: jax.Array) -> jax.Array:
     """``V(q) = Σ_k [Φ_k(x_k(q))/c_k + ½ w γ_d ‖x_k(q)‖²]`` (module docstring), which the policy
     without execution leaves decreases: ``V̇ = −fᵀ(M + εI)⁻¹f ≤ 0``."""
-    x = L.task_coordinates("two_step", 0, q, goals, jnp.zeros_like(q))
+    x = task_coordinates("two_step", 0, q, goals, jnp.zeros_like(q))
     phi = jax.vmap(nominal_potential)(result.constants, x) / result.params["scale"]
     return jnp.sum(phi) + 0.5 * config.default_weight * config.default_gain * jnp.sum(x * x)

@@ -6,13 +6,17 @@
   the observation normalised by the running statistics ``norm`` (:mod:`agents.ppo.normalization`);
   ``log_std`` has shape ``(action_size,)`` and broadcasts against ``mean``.
 * :class:`ValueMLP` — MLP (256, 128) tanh by default, scalar output: ``__call__(obs) -> (...,)``.
+* :class:`PPONetworks` — the policy and value modules of one PPO program and how each reads the
+  observation (normalised or raw).
 
 Both work on a single observation ``(obs_size,)`` or on any leading batch shape.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import flax.linen as nn
 import jax
@@ -30,7 +34,7 @@ ACTIVATIONS: dict[str, Callable[[jax.Array], jax.Array]] = {
 }
 
 
-def normc(scale: float = 1.0):
+def normc(scale: float = 1.0) -> Callable[..., jax.Array]:
     """RLlib's ``normc_initializer``: Gaussian columns rescaled to Euclidean norm ``scale``.
 
     For a Dense kernel ``(fan_in, fan_out)`` every output unit's weight vector has norm
@@ -100,4 +104,29 @@ class ValueMLP(nn.Module):
         return MLP(self.hidden_sizes, 1, self.activation, self.out_scale, name="mlp")(obs)[..., 0]
 
 
-__all__ = ["ACTIVATIONS", "MLP", "GaussianPolicy", "ValueMLP", "activation_fn", "normc"]
+@dataclasses.dataclass(frozen=True)
+class PPONetworks:
+    """The policy module (``apply(p, obs, norm) -> (mean, log_std)``) and value module of a PPO
+    program. With ``normalize_observations`` both read the running statistics passed to
+    :meth:`policy_apply` and :meth:`value_apply`; otherwise the statistics are ignored."""
+
+    policy: nn.Module
+    value: nn.Module
+    normalize_observations: bool = False
+
+    def norm(self, stats: RunningStats) -> RunningStats | None:
+        """The statistics the networks read: ``stats``, or None without normalisation."""
+        return stats if self.normalize_observations else None
+
+    def policy_apply(self, params: Any, obs: jax.Array, stats: RunningStats
+                     ) -> tuple[jax.Array, jax.Array]:
+        """``(mean, log_std)`` of the policy at ``obs``."""
+        return self.policy.apply(params, obs, self.norm(stats))
+
+    def value_apply(self, params: Any, obs: jax.Array, stats: RunningStats) -> jax.Array:
+        """State value at ``obs`` (normalised first when the networks normalise)."""
+        return self.value.apply(params, normalize(self.norm(stats), obs))
+
+
+__all__ = ["ACTIVATIONS", "MLP", "GaussianPolicy", "PPONetworks", "ValueMLP", "activation_fn",
+           "normc"]

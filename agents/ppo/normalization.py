@@ -1,4 +1,4 @@
-"""Running observation statistics for PPO's optional observation normalisation (docs/design.md §2.3).
+"""Running observation statistics for PPO's observation normalisation (docs/design.md §2.3).
 
 Only the *learned* parts of a policy (MLPs, the value network) read normalised observations;
 RMP² always decodes the raw observation (see :mod:`agents.ppo.policies`). Statistics start at

@@ -75,16 +75,19 @@ class ObservationSpec:
     layout: tuple[tuple[str, int, int], ...]
 
     @classmethod
-    def from_env(cls, env) -> ObservationSpec:
+    def from_env(cls, env: Env) -> ObservationSpec:
+        """The spec of a reaching environment (possibly wrapped)."""
         base = getattr(env, "unwrapped", env)
         layout = tuple((k, s.start, s.stop) for k, s in base.observation_layout().items())
         return cls(str(base.robot_name), int(base.num_obstacles), layout)
 
     @property
     def size(self) -> int:
+        """Length of one observation."""
         return max(stop for _, _, stop in self.layout)
 
     def part(self, obs: jax.Array, name: str) -> jax.Array:
+        """The slice ``name`` of ``obs`` (last axis); ``KeyError`` for an unknown name."""
         for k, start, stop in self.layout:
             if k == name:
                 return obs[..., start:stop]
@@ -114,7 +117,8 @@ def _over_batch(fn, *args):
     return jax.tree.map(lambda x: x.reshape((*lead, *x.shape[1:])), out)
 
 
-def decode_observation(spec_or_env, obs: jax.Array):
+def decode_observation(spec_or_env: ObservationSpec | Env, obs: jax.Array
+                       ) -> tuple[jax.Array, jax.Array, jax.Array, Obstacles]:
     """``(q, q̇, goal, obstacles)`` recovered from an observation with any leading batch shape.
 
     ``spec_or_env`` is an :class:`ObservationSpec` or a reaching environment (possibly wrapped).
@@ -129,7 +133,8 @@ def decode_observation(spec_or_env, obs: jax.Array):
     return _over_batch(lambda o: _decode_one(spec, o), obs)
 
 
-def residual_features(spec: ObservationSpec, obs: jax.Array):
+def residual_features(spec: ObservationSpec, obs: jax.Array
+                      ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array, Obstacles]:
     """``(net_input, q, q̇, goal, obstacles)`` of :class:`RMPResidualPolicy` for one observation;
     ``net_input = [x, ẋ, g, {o_i}]`` with ``x = FK(q)``, ``ẋ = J q̇`` (by ``jvp``) and ``o_i`` the
     observation's (centre, radius) block."""

@@ -1,1 +1,14 @@
-"""run."""
+"""Training runs of :mod:`agents.ppo` and what is done with them (docs/design.md §2.3).
+
+* :mod:`agents.run.spec` — :class:`~agents.run.spec.RunSpec` and the PPO presets;
+* :mod:`agents.run.program` — the compiled, seed-vmapped program of a spec and its timing split;
+* :mod:`agents.run.training` — :func:`~agents.run.training.run_training`, the chunked loop;
+* :mod:`agents.run.logs` — progress bar, ``metrics.csv``, TensorBoard;
+* :mod:`agents.run.curves` — learning curves as the thesis draws them;
+* :mod:`agents.run.checkpoint` — orbax checkpoints of the whole state;
+* :mod:`agents.run.loading` — a run directory back as a policy;
+* :mod:`agents.run.evaluation` — checkpoints × setups × seeds × episodes in one compiled call;
+* :mod:`agents.run.eval_report` — the evaluation report, its table and GIF;
+* :mod:`agents.run.export` — a policy as a standalone :mod:`jax.export` blob;
+* :mod:`agents.run.ch6` — the chapter-6 study (train every policy class, Figs 6.2–6.4).
+"""

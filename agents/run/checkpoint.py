@@ -2,11 +2,12 @@
 
 A checkpoint directory holds orbax steps (``<dir>/<iteration>/``), each with two items:
 
-* ``state`` — every non-empty array leaf of the run's state pytree (a :class:`agents.ppo.train.
-  TrainState`, possibly with a leading seed axis), saved as a flat ``{"leaf_00042": array}``
-  dict. Flattening keeps orbax away from MJX's zero-size arrays (which it refuses to write) and
-  makes the structure check explicit: restoring needs a *template* of the expected state (e.g.
-  ``jax.eval_shape`` of the trainer's ``init``) and refuses a checkpoint whose leaves differ.
+* ``state`` — every non-empty array leaf of the run's state pytree (a
+  :class:`agents.ppo.state.TrainState`, possibly with a leading seed axis), saved as a flat
+  ``{"leaf_00042": array}`` dict. Flattening keeps orbax away from MJX's zero-size arrays
+  (which it refuses to write) and makes the structure check explicit: restoring needs a
+  *template* of the expected state (e.g. ``jax.eval_shape`` of the trainer's ``init``) and
+  refuses a checkpoint whose leaves differ.
 * ``meta`` — JSON: what the run is (environment, policy kind, configuration), the iteration, the
   metric history, anything the caller adds.
 

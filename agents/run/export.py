@@ -1,4 +1,4 @@
-"""Deterministic policy export with :mod:`jax.export` (issue 4, item 6).
+"""Deterministic policy export with :mod:`jax.export`.
 
 :func:`export_policy` serialises the deterministic policy ``obs (b, obs_size) float32 → action
 mean (b, action_size) float32`` with a symbolic batch dimension ``b ≥ 1`` and the parameters
@@ -12,6 +12,10 @@ backend). It writes two files:
   platforms actually lowered for, JAX versions, the blob's SHA-256, creation time and the
   caller's ``metadata``).
 
+:func:`export_from_params` exports a reaching policy of the project (its metadata: environment,
+policy kind, robot, observation layout); :func:`export_run` is what ``scripts/export.py`` calls
+(a checkpoint's policy, or a freshly initialised one).
+
 Load either with ``scripts/load_policy.py`` (standalone: ``jax``, ``numpy`` and the standard
 library only) or with ``jax.export.deserialize`` directly.
 
@@ -23,7 +27,7 @@ Seen on 2026-11-22: blobs exported with jax 0.10.2 on a CPU-only machine loaded 
 and ran on an H100 and on its CPU. CPU results matched bit for bit for ``nn`` (within ~1e-6
 relative for ``rmp_residual``, a different XLA); GPU results differed from CPU ones by ~5e-4
 relative for ``nn`` at the default matmul precision and ~5e-7 with
-``matmul_precision="highest"``.
+``matmul_precision="highest"`` (docs/design.md §5.4).
 """
 
 from __future__ import annotations
@@ -43,6 +47,10 @@ import jax
 import jax.numpy as jnp
 from jax import export as jax_export
 
+import envs
+from agents.ppo import KINDS, make_env_and_policy
+from agents.run.loading import deterministic_policy, load_run
+
 #: Value of the manifest's ``format`` field.
 FORMAT = "mjxrmp-policy-export"
 #: Manifest layout version; bump when a field changes meaning.
@@ -53,6 +61,12 @@ SUFFIX = ".jaxexport"
 KNOWN_PLATFORMS = ("cpu", "cuda", "rocm", "tpu")
 #: Values of ``matmul_precision`` (those of ``jax.default_matmul_precision``).
 MATMUL_PRECISIONS = ("default", "high", "highest", "bfloat16", "tensorfloat32", "float32")
+#: Environments the policy classes support: the reaching environments (not ``point2d``).
+EXPORTABLE_ENVS = tuple(sorted(
+    name for name, factory in envs.ENVIRONMENTS.items()
+    if isinstance(getattr(factory, "func", factory), type)
+    and issubclass(getattr(factory, "func", factory), envs.ReachEnv)
+))
 
 
 def _jaxlib_version() -> str:
@@ -137,49 +151,18 @@ def _lower(fn: Callable, spec: jax.ShapeDtypeStruct, platforms: Sequence[str]):
     return jax_export.export(fn, platforms=tuple(ok))(spec), errors
 
 
-def export_policy(
-    apply_fn: Callable[[Any, jax.Array], jax.Array],
-    params: Any,
-    obs_size: int,
-    path: str | os.PathLike,
-    metadata: dict | None = None,
-    platforms: Sequence[str] = ("cpu", "cuda"),
-    matmul_precision: str | None = None,
-) -> dict:
-    """Export ``obs ↦ apply_fn(params, obs)`` and write the blob and its manifest; return it.
+def _barrier_policy(apply_fn: Callable[[Any, jax.Array], jax.Array], params: Any
+                    ) -> Callable[[jax.Array], jax.Array]:
+    """``obs ↦ apply_fn(params, obs)`` as float32, the parameters behind an optimisation barrier.
 
-    Args:
-      apply_fn: ``apply_fn(params, obs) -> mean`` for a batch ``obs`` of shape
-        ``(b, obs_size)``, returning an array ``(b, action_size)`` (e.g.
-        ``lambda p, o: module.apply(p, o)[0]``). It is traced once with a symbolic ``b``.
-      params: pytree of arrays, baked into the exported module as constants.
-      obs_size: length of one observation (positive int).
-      path: output file, suffix ``.jaxexport``; the manifest goes to
-        ``path.with_suffix(".json")``. Parent directories are created. Both files are written
-        atomically (temporary file + ``os.replace``), the blob first.
-      metadata: JSON-serialisable dict stored under the manifest's ``metadata`` key (env name,
-        policy kind, iteration, observation layout, ...).
-      platforms: platforms to lower for. Platforms that fail to lower are dropped (at least one
-        must succeed) and listed in the manifest's ``platform_errors``; ``platforms`` lists the
-        ones actually exported.
-      matmul_precision: ``None`` keeps the backend's default float32 matmul precision, as in
-        training (on recent NVIDIA GPUs a TF32-class precision: ``nn`` actions on an H100 then
-        differ from CPU ones by ~5e-4 relative); ``"highest"`` bakes full float32 precision
-        into every matrix product (``jax.default_matmul_precision`` while tracing).
-
-    Returns:
-      The manifest dict, as written.
+    The barrier keeps XLA from constant-folding through the baked parameters: the exported
+    function then computes exactly what the compiled ``apply_fn`` computes with the parameters
+    passed as arguments (as in training). Without it, folding reorders float32 arithmetic (up to
+    ~4e-5 relative for rmp_residual, whose RMP² solve amplifies it).
     """
-    path, platforms = _check_args(obs_size, path, metadata, platforms, matmul_precision)
-    if not callable(apply_fn):
-        raise TypeError(f"apply_fn must be callable, got {type(apply_fn).__name__}")
     params = jax.tree.map(jnp.asarray, params)
 
     def policy(obs):
-        # The barrier keeps XLA from constant-folding through the baked parameters: the exported
-        # function then computes exactly what the compiled ``apply_fn`` computes with the
-        # parameters passed as arguments (as in training). Without it, folding reorders float32
-        # arithmetic (up to ~4e-5 relative for rmp_residual, whose RMP² solve amplifies it).
         mean = apply_fn(jax.lax.optimization_barrier(params), obs)
         if not hasattr(mean, "shape") or not hasattr(mean, "dtype"):
             raise TypeError(
@@ -188,13 +171,11 @@ def export_policy(
             )
         return jnp.asarray(mean, jnp.float32)
 
-    (b,) = jax_export.symbolic_shape("b")
-    spec = jax.ShapeDtypeStruct((b, obs_size), jnp.float32)
-    precision = (contextlib.nullcontext() if matmul_precision is None
-                 else jax.default_matmul_precision(matmul_precision))
-    with precision:
-        exported, platform_errors = _lower(jax.jit(policy), spec, platforms)
+    return policy
 
+
+def _action_size(exported: jax_export.Exported, obs_size: int) -> int:
+    """The static action size of an export ``(b, obs_size) -> (b, action_size)``."""
     (out,) = exported.out_avals
     if len(out.shape) != 2 or not jax_export.is_symbolic_dim(out.shape[0]) \
             or jax_export.is_symbolic_dim(out.shape[1]):
@@ -202,10 +183,15 @@ def export_policy(
             f"apply_fn must map obs (b, {obs_size}) to a mean (b, action_size); got shape "
             f"{out.shape}"
         )
-    action_size = int(out.shape[1])
+    return int(out.shape[1])
 
-    blob = bytes(exported.serialize())
-    manifest = {
+
+def _manifest(exported: jax_export.Exported, blob: bytes, path: Path, obs_size: int,
+              platforms: Sequence[str], platform_errors: dict[str, str],
+              matmul_precision: str | None, metadata: dict | None) -> dict:
+    """The manifest of the blob ``blob`` written to ``path`` (see the module docstring)."""
+    action_size = _action_size(exported, obs_size)
+    return {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
         "file": path.name,
@@ -227,6 +213,45 @@ def export_policy(
         "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "metadata": dict(metadata or {}),
     }
+
+
+def export_policy(
+    apply_fn: Callable[[Any, jax.Array], jax.Array],
+    params: Any,
+    obs_size: int,
+    path: str | os.PathLike,
+    metadata: dict | None = None,
+    platforms: Sequence[str] = ("cpu", "cuda"),
+    matmul_precision: str | None = None,
+) -> dict:
+    """Export ``obs ↦ apply_fn(params, obs)`` and write the blob and its manifest; return it.
+
+    ``apply_fn(params, obs) -> mean`` maps a batch ``obs (b, obs_size)`` to ``(b, action_size)``
+    (e.g. ``lambda p, o: module.apply(p, o)[0]``), traced once with a symbolic ``b``; ``params``
+    (a pytree of arrays) is baked in as constants. ``path`` ends in ``.jaxexport``; the manifest
+    goes to ``path.with_suffix(".json")``; parent directories are created and both files are
+    written atomically (temporary file + ``os.replace``), the blob first. ``metadata`` (a
+    JSON-serialisable dict: env name, policy kind, iteration, ...) is stored under the
+    manifest's ``metadata`` key. Platforms of ``platforms`` that fail to lower are dropped (at
+    least one must succeed) and listed in the manifest's ``platform_errors``.
+    ``matmul_precision=None`` keeps the backend's default float32 matmul precision, as in
+    training (on recent NVIDIA GPUs a TF32-class precision: ``nn`` actions on an H100 then
+    differ from CPU ones by ~5e-4 relative); ``"highest"`` bakes full float32 precision into
+    every matrix product (``jax.default_matmul_precision`` while tracing).
+    """
+    path, platforms = _check_args(obs_size, path, metadata, platforms, matmul_precision)
+    if not callable(apply_fn):
+        raise TypeError(f"apply_fn must be callable, got {type(apply_fn).__name__}")
+    (b,) = jax_export.symbolic_shape("b")
+    spec = jax.ShapeDtypeStruct((b, obs_size), jnp.float32)
+    precision = (contextlib.nullcontext() if matmul_precision is None
+                 else jax.default_matmul_precision(matmul_precision))
+    with precision:
+        exported, platform_errors = _lower(jax.jit(_barrier_policy(apply_fn, params)), spec,
+                                           platforms)
+    blob = bytes(exported.serialize())
+    manifest = _manifest(exported, blob, path, obs_size, platforms, platform_errors,
+                         matmul_precision, metadata)
     path.parent.mkdir(parents=True, exist_ok=True)
     _atomic_write(path, blob)
     _atomic_write(manifest_path(path),
@@ -234,5 +259,85 @@ def export_policy(
     return manifest
 
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "KNOWN_PLATFORMS", "MATMUL_PRECISIONS", "SUFFIX",
-           "export_policy", "manifest_path"]
+def check_names(env_name: str, kind: str) -> None:
+    """Raise ``ValueError`` listing the valid names if ``env_name`` or ``kind`` is unknown."""
+    name = envs.BRAX_NAMES.get(env_name, env_name)
+    if name not in EXPORTABLE_ENVS:
+        what = "has no policy classes" if name in envs.ENVIRONMENTS else "is unknown"
+        raise ValueError(
+            f"env_name={env_name!r} {what}; valid names are {list(EXPORTABLE_ENVS)}"
+        )
+    if kind not in KINDS:
+        raise ValueError(f"unknown policy kind={kind!r}; valid kinds are {list(KINDS)}")
+
+
+def init_params(env_name: str, kind: str, seed: int = 0) -> Any:
+    """Freshly initialised parameters of the ``kind`` policy for ``env_name``."""
+    check_names(env_name, kind)
+    env, module = make_env_and_policy(env_name, kind)
+    return jax.jit(module.init)(jax.random.PRNGKey(seed), jnp.zeros((env.observation_size,)))
+
+
+def export_from_params(env_name: str, kind: str, params: Any, out: str | os.PathLike,
+                       metadata: dict | None = None,
+                       platforms: Sequence[str] = ("cpu", "cuda"),
+                       matmul_precision: str | None = None,
+                       apply_fn: Callable | None = None) -> dict:
+    """Export the deterministic mean of the ``kind`` policy for ``env_name`` with ``params``.
+
+    ``apply_fn(params, obs) -> mean`` defaults to the module's mean on the raw observation;
+    pass :func:`agents.run.loading.deterministic_policy`'s pair for a checkpoint (observation
+    statistics included). The manifest's ``metadata`` holds ``env``, ``policy``, ``robot``,
+    ``observation_layout`` (``{name: [start, stop]}``) and ``action`` (what the action means),
+    updated with ``metadata`` (e.g. ``iteration``, ``seed``, ``checkpoint``). ``platforms`` and
+    ``matmul_precision`` go to :func:`export_policy`. Returns the manifest.
+    """
+    check_names(env_name, kind)
+    env, module = make_env_and_policy(env_name, kind)
+    base = getattr(env, "unwrapped", env)
+    meta = {
+        "env": env_name,
+        "policy": kind,
+        "robot": str(base.robot_name),
+        "observation_layout": {k: [s.start, s.stop]
+                               for k, s in base.observation_layout().items()},
+        "action": ("raw residual RMP (A_r row-major, a_r), squashed by envs.RMPInEnv"
+                   if kind == "rmp_residual_env"
+                   else "joint-acceleration mean (unclipped; the environment clips)"),
+    }
+    meta.update(metadata or {})
+    if apply_fn is None:
+        def apply_fn(p, o):
+            return module.apply(p, o)[0]
+    return export_policy(apply_fn, params, int(env.observation_size), out, metadata=meta,
+                         platforms=platforms, matmul_precision=matmul_precision)
+
+
+def export_run(out: str | os.PathLike, checkpoint: str | os.PathLike | None = None,
+               step: int | None = None, train_seed_index: int = 0, env_name: str | None = None,
+               kind: str | None = None, seed: int = 0,
+               platforms: Sequence[str] = ("cpu", "cuda"),
+               matmul_precision: str | None = None) -> dict:
+    """What ``scripts/export.py`` exports: with ``checkpoint`` (a run directory) the policy of
+    checkpoint ``step`` (default: the newest) and training seed ``train_seed_index``, its
+    observation statistics baked in; otherwise a freshly initialised ``kind`` policy for
+    ``env_name`` (``params = module.init(PRNGKey(seed), zeros(obs_size))``). Returns the
+    manifest (:func:`export_from_params`)."""
+    if checkpoint is not None:
+        run = load_run(checkpoint, step)
+        apply_fn, params = deterministic_policy(run, train_seed_index)
+        env_name, kind = run.spec.env, run.spec.policy
+        meta = {"source": "checkpoint", "checkpoint": os.path.abspath(checkpoint),
+                "iteration": run.iteration, "seed": run.seeds[train_seed_index]}
+    else:
+        if env_name is None or kind is None:
+            raise ValueError("export_run needs a checkpoint, or env_name and kind")
+        apply_fn, params = None, init_params(env_name, kind, seed)
+        meta = {"source": "init", "seed": seed, "iteration": 0}
+    return export_from_params(env_name, kind, params, out, meta, platforms=platforms,
+                              matmul_precision=matmul_precision, apply_fn=apply_fn)
+
+
+__all__ = ["EXPORTABLE_ENVS", "FORMAT", "FORMAT_VERSION", "KNOWN_PLATFORMS", "MATMUL_PRECISIONS",
+           "SUFFIX", "check_names", "export_from_params", "export_policy", "export_run",
+           "init_params", "manifest_path"]

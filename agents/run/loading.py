@@ -1,9 +1,10 @@
 """Load a training run directory (:func:`agents.run.training.run_training`) and act with it.
 
-:func:`load_run` rebuilds the :class:`~agents.run.training.RunSpec` from ``run.json``, the
-:class:`~agents.run.training.Program` with :func:`~agents.run.training.build` and restores a checkpoint
-(default: the newest) into the seed-stacked :class:`~agents.ppo.train.TrainState`; the checkpoint's
-meta must match the spec (:class:`agents.run.checkpoint.IncompatibleCheckpointError` otherwise).
+:func:`load_run` rebuilds the :class:`~agents.run.spec.RunSpec` from ``run.json``, the
+:class:`~agents.run.program.Program` with :func:`~agents.run.program.build` and restores a
+checkpoint (default: the newest) into the seed-stacked :class:`~agents.ppo.state.TrainState`; the
+checkpoint's meta must match the spec
+(:class:`agents.run.checkpoint.IncompatibleCheckpointError` otherwise).
 
 The deterministic policy of a checkpoint is its Gaussian mean (the environment clips it):
 ``apply_fn(policy_params, obs) -> mean`` with ``policy_params`` a :class:`PolicyParams` (the
@@ -27,13 +28,14 @@ from typing import Any, NamedTuple
 
 import jax
 import orbax.checkpoint as ocp
+from brax.envs.base import Env, State
 
+from agents.ppo import PPOConfig, TrainState, make_env_and_policy
 from agents.ppo.normalization import RunningStats
-from agents.ppo.policies import make_env_and_policy
-from agents.ppo.train import PPOConfig, TrainState
 from agents.run import checkpoint
 from agents.run.checkpoint import IncompatibleCheckpointError
-from agents.run.training import Program, RunSpec, build, seed_keys
+from agents.run.program import Program, build, seed_keys
+from agents.run.spec import RunSpec
 
 
 class PolicyParams(NamedTuple):
@@ -72,7 +74,7 @@ class LoadedRun:
         return self.program.trainer.policy
 
 
-def make_env(env_name: str, kind: str):
+def make_env(env_name: str, kind: str) -> Env:
     """The single (un-batched) environment ``env_name`` as policy ``kind`` acts on it (wrapped
     in :class:`envs.wrappers.RMPInEnv` for ``rmp_residual_env``), as in training."""
     return make_env_and_policy(env_name, kind)[0]
@@ -132,7 +134,7 @@ def read_spec(run_dir: str | os.PathLike) -> RunSpec:
 def load_run(run_dir: str | os.PathLike, step: int | None = None) -> LoadedRun:
     """Restore checkpoint ``step`` (default: the newest) of the run in ``run_dir``.
 
-    The spec comes from ``run.json``, the program from :func:`agents.run.training.build` (cached,
+    The spec comes from ``run.json``, the program from :func:`agents.run.program.build` (cached,
     so loading several checkpoints of one run builds it once), the state with the template
     ``jax.eval_shape(program.init, seed_keys(spec.seeds))``. Raises ``FileNotFoundError`` for a
     missing directory, ``run.json`` or checkpoint (naming the steps there are), and
@@ -191,7 +193,8 @@ def deterministic_policy(loaded: LoadedRun, seed_index: int = 0
     return mean_action_fn(loaded), policy_params(loaded, seed_index)
 
 
-def env_policy(apply_fn: Callable[[PolicyParams, Any], Any], params: PolicyParams):
+def env_policy(apply_fn: Callable[[PolicyParams, Any], Any], params: PolicyParams
+               ) -> Callable[[State], jax.Array]:
     """``policy(state) -> action`` acting on ``state.obs`` with the mean action, as
     :func:`envs.evaluate.make_rollout` and the render script take it."""
 

@@ -16,8 +16,8 @@ resolves the root with :func:`mjxrmp.core.rmp2.resolve` (the same numerics as RM
 re-runs the robot's forward kinematics (for the Franka ~180 subtasks, each walking the 7-joint
 chain) with ``d`` tangents for the Jacobian and once more for the second-order pass, so the work
 grows as ``O(N · d · cost(FK))``, and the ``N`` small ``JᵀMJ`` products run one after another.
-RMP² (:mod:`mjxrmp.core.rmp2`) instead pushes ``d + 1`` tangents through *one* pass of the whole task
-map and contracts every family with one batched ``einsum``.
+RMP² (:mod:`mjxrmp.core.rmp2`) instead pushes ``d + 1`` tangents through *one* pass of the
+whole task map and contracts every family with one batched ``einsum``.
 
 **Keeping the baseline honest under XLA.** The subtask maps of one family are identical
 computations of ``q``, so XLA's common-subexpression elimination (or loop-invariant code motion)
@@ -104,8 +104,9 @@ def acceleration_naive(
 ) -> jax.Array:
     """RMP² acceleration computed subtask by subtask (the naive baseline; see the module doc).
 
-    Same arguments and result as :func:`mjxrmp.core.rmp2.acceleration` (without ``debug``): ``q`` and
-    ``qd`` are single configurations ``(d,)``, ``ctx`` goes to ``task_map`` and ``leaf_fn``.
+    Same arguments and result as :func:`mjxrmp.core.rmp2.acceleration` (without ``debug``):
+    ``q`` and ``qd`` are single configurations ``(d,)``, ``ctx`` goes to ``task_map`` and
+    ``leaf_fn``.
     ``unroll=True`` unrolls the per-subtask loop in Python (slow to compile).
     """
     q = rmp2.check_configuration("q", q)

@@ -5,8 +5,9 @@ first-order (velocity) form of chapter 5 (eq 5.1).
 
 A *task map* ``task_map(q, *ctx)`` returns a pytree whose leaves are arrays shaped ``(n_k, m_k)``:
 a family of ``n_k`` subtasks of dimension ``m_k`` each (e.g. 48 control points in 3-D, or
-144 point–obstacle distances in 1-D). A *leaf function* ``leaf_fn(x_tree, xd_tree, *ctx)`` returns
-a pytree of the same structure whose leaves are :class:`~mjxrmp.core.rmp.RMP` ``(M (n,m,m), f (n,m))``.
+144 point–obstacle distances in 1-D). A *leaf function* ``leaf_fn(x_tree, xd_tree, *ctx)``
+returns a pytree of the same structure whose leaves are :class:`~mjxrmp.core.rmp.RMP`
+``(M (n,m,m), f (n,m))``.
 
 Velocities ``ẋ = J q̇`` and curvatures ``c = J̇ q̇`` come from two nested forward-mode JVPs
 (eq 3.11); the Jacobians of every family come from ``d`` forward tangents evaluated together with
@@ -131,7 +132,8 @@ def _debug_check(enabled: bool, tree: Any, what: str) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def task_kinematics(task_map: TaskMap, q: jax.Array, qd: jax.Array, *ctx: Any):
+def task_kinematics(task_map: TaskMap, q: jax.Array, qd: jax.Array, *ctx: Any
+                    ) -> tuple[Any, Any, Any, Any]:
     """Subtask positions ``x``, velocities ``ẋ = J q̇`` and curvatures ``c = J̇ q̇`` (eq 3.11).
 
     Returns ``(x, xd, c, J)``, four pytrees with the task map's structure; ``J`` leaves have shape
@@ -148,7 +150,7 @@ def task_kinematics(task_map: TaskMap, q: jax.Array, qd: jax.Array, *ctx: Any):
     return x, xd, c, J
 
 
-def task_jacobian(task_map: TaskMap, q: jax.Array, *ctx: Any):
+def task_jacobian(task_map: TaskMap, q: jax.Array, *ctx: Any) -> tuple[Any, Any]:
     """Subtask positions and Jacobians ``(x, J)`` (first-order forward pass of eq 5.1)."""
     fn = lambda q_: task_map(q_, *ctx)  # noqa: E731
     x = fn(q)

@@ -15,8 +15,8 @@ Preprocessing (:func:`load_task`), per demonstration:
    kept; the last resampled time is the largest multiple of ``dt`` within the recording).
 3. **Velocities** by forward differences ``(q_{t+1} − q_t)/dt``, zero at the last sample (so that
    explicit Euler with the same ``dt`` reproduces the demonstration; the same rule as
-   :func:`agents.lfd.flow_field.finite_difference_velocities`, restated here because ``mjxrmp`` does not
-   import ``agents``).
+   :func:`agents.lfd.flow_training.finite_difference_velocities`, restated here because ``mjxrmp``
+   does not import ``agents``).
 4. **Control points** (§5.2.3: "3 control points on the hand: one at the centre of the gripper
    and one at each of the tips of the two-fingered gripper"): positions by the forward kinematics
    of :mod:`mjxrmp.robots.franka`, velocities by forward differences of those positions.
@@ -55,7 +55,7 @@ TASKS = ("door_reaching", "drawer_closing")
 #: Columns of a row: time, 7 joint angles, 2 finger widths.
 NUM_COLUMNS = 10
 #: ``centre`` choice → the frame of :func:`mjxrmp.robots.franka.link_frames` used as the centre
-#: control point (module docstring, item 4).
+#: control point (module docstring, step 4).
 CENTRE_FRAMES = {"hand": "hand", "grasp": "grasp_target"}
 #: The fingertip frames (the second and third control points).
 FINGERTIP_FRAMES = ("left_fingertip", "right_fingertip")
@@ -122,7 +122,7 @@ class StackedDemos(NamedTuple):
 
 
 def control_point_names(centre: str = "hand") -> tuple[str, str, str]:
-    """Frame names of the three control points for ``centre`` (module docstring, item 4)."""
+    """Frame names of the three control points for ``centre`` (module docstring, step 4)."""
     if centre not in CENTRE_FRAMES:
         raise ValueError(f"centre must be one of {sorted(CENTRE_FRAMES)}, got {centre!r}")
     return (CENTRE_FRAMES[centre], *FINGERTIP_FRAMES)

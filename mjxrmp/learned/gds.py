@@ -57,6 +57,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxrmp.config import check_choice, check_float, check_fraction, check_int
 from mjxrmp.core.rmp import RMP
 from mjxrmp.learned.flows import ACTIVATIONS, EuclideanizingFlow, subtask_map
 from mjxrmp.leaves.gds import Leaf
@@ -113,13 +114,11 @@ def _zero_dense(n: int, name: str, param_dtype: Any) -> nn.Dense:
 
 def _check_metric_fields(obj: Any) -> None:
     name = type(obj).__name__
-    if not isinstance(obj.dim, int) or obj.dim < 1:
-        raise ValueError(f"{name}.dim must be an int >= 1, got {obj.dim!r}")
-    if not (0.0 <= obj.eps < 1.0):
-        raise ValueError(f"{name}.eps must be in [0, 1), got {obj.eps!r}")
-    if any((not isinstance(h, int)) or h < 1 for h in obj.hidden_sizes):
-        raise ValueError(f"{name}.hidden_sizes must be positive ints, got {obj.hidden_sizes!r}")
-    _activation(obj.activation)
+    check_int(obj.dim, f"{name}.dim")
+    check_fraction(obj.eps, f"{name}.eps", allow_zero=True)
+    for i, h in enumerate(obj.hidden_sizes):
+        check_int(h, f"{name}.hidden_sizes[{i}]")
+    check_choice(obj.activation, f"{name}.activation", sorted(ACTIVATIONS))
 
 
 def _check_input(x: jax.Array, dim: int, name: str) -> jax.Array:
@@ -149,10 +148,8 @@ class CholeskyMetric(nn.Module):
 
     def __post_init__(self) -> None:
         _check_metric_fields(self)
-        if self.diagonal not in DIAGONALS:
-            raise ValueError(f"CholeskyMetric.diagonal must be one of {DIAGONALS}, "
-                             f"got {self.diagonal!r}")
-        if not (0.0 < self.diag_eps < math.sqrt(1.0 - self.eps)):
+        check_choice(self.diagonal, "CholeskyMetric.diagonal", DIAGONALS)
+        if check_float(self.diag_eps, "CholeskyMetric.diag_eps") >= math.sqrt(1.0 - self.eps):
             raise ValueError(f"CholeskyMetric.diag_eps must be in (0, √(1 − eps)), "
                              f"got {self.diag_eps!r}")
         super().__post_init__()
@@ -233,8 +230,8 @@ def quadratic_potential(y: jax.Array) -> jax.Array:
 
 def smooth_norm_potential(y: jax.Array, eps: float = 1e-2) -> jax.Array:
     """``Φ̄(y) = √(‖y‖² + ε²) − ε``: a smoothed ``‖y‖``, whose negative gradient is (nearly) the
-    unit latent velocity ``ẏ = −y/‖y‖`` of the original implementation (docs/design.md §4.6). Its only
-    stationary point is the origin."""
+    unit latent velocity ``ẏ = −y/‖y‖`` of the original implementation (docs/design.md §4.6).
+    Its only stationary point is the origin."""
     return jnp.sqrt(jnp.sum(y * y, axis=-1) + eps * eps) - eps
 
 
@@ -295,8 +292,8 @@ def learned_gds(
     computed from one forward-mode Jacobian of ``metric``. ``curvature=False`` drops it: cheaper,
     but then no longer a GDS, so Lemma 3.2.1's ``V̇ = −ẋᵀBẋ`` does not hold (the velocity-based
     systems of Remark 5.1.1 avoid curvature terms altogether). With curvature the result equals
-    :func:`mjxrmp.leaves.gds.gds` with ``G(x, ẋ) = metric(x)`` and ``B = γ_d G``. Lift to a family with
-    :func:`mjxrmp.leaves.gds.family`.
+    :func:`mjxrmp.leaves.gds.gds` with ``G(x, ẋ) = metric(x)`` and ``B = γ_d G``. Lift to a
+    family with :func:`mjxrmp.leaves.gds.family`.
     """
     if isinstance(damping, (int, float)) and not (damping >= 0 and math.isfinite(damping)):
         raise ValueError(f"damping must be finite and >= 0, got {damping!r}")

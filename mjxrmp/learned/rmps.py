@@ -1,10 +1,10 @@
 """Learned subtask RMPs: residual, direct, learned nominal + CLF, GDS on a nominal potential.
 
-Thesis chapter 4 (§4.3.1–4.3.2) and chapter 6 (§6.1.2, §6.2.2). Every leaf here is a pure
-function ``(x (m,), ẋ (m,)) -> RMP(M (m, m), f (m,))`` for **one** subtask in natural form
-``[M, f = M a]`` (§3.2.6), like :mod:`mjxrmp.leaves.gds` and :mod:`mjxrmp.leaves.clf`; lift it to a family
-``(n, m)`` for :mod:`mjxrmp.core.rmp2` with :func:`mjxrmp.leaves.gds.family`. Networks are
-:mod:`flax.linen` modules; bind their variables with a closure.
+Thesis chapter 4 (§4.3.1–4.3.2) and chapter 6 (§6.1.2, §6.2.2). Every leaf here is a pure function
+``(x (m,), ẋ (m,)) -> RMP(M (m, m), f (m,))`` for **one** subtask in natural form ``[M, f = M a]``
+(§3.2.6), like :mod:`mjxrmp.leaves.gds` and :mod:`mjxrmp.leaves.clf`; lift it to a family ``(n, m)``
+for :mod:`mjxrmp.core.rmp2` with :func:`mjxrmp.leaves.gds.family`. Networks are :mod:`flax.linen`
+modules; bind their variables with a closure.
 
 * **Residual RMP** (§6.1.2 "Learning Residual RMP", §6.2.2 RMP-RESIDUAL): a network outputs
   ``A_r ∈ R^{m×m}`` and ``a_r ∈ R^m``; with the hand-designed RMP ``(M_h, a_h)``::
@@ -18,8 +18,8 @@ function ``(x (m,), ẋ (m,)) -> RMP(M (m, m), f (m,))`` for **one** subtask in 
   ``eps ≥ 0`` (default 0, the thesis) and returns ``M + εI``, positive definite with
   ``λ_min ≥ ε`` for every network output when ``ε > 0``.
 * **Direct RMP** (§4.3.2): ``M(x)`` by either metric parameterisation of §4.3.1
-  (:class:`mjxrmp.learned.gds.CholeskyMetric` / :class:`~mjxrmp.learned.gds.GramMetric`, ``λ_min ≥ ε``
-  for every parameter value) and ``a(x, ẋ)`` by a fully connected network
+  (:class:`mjxrmp.learned.gds.CholeskyMetric` / :class:`~mjxrmp.learned.gds.GramMetric`,
+  ``λ_min ≥ ε`` for every parameter value) and ``a(x, ẋ)`` by a fully connected network
   (:class:`DirectRMP`). No stability guarantee (§4.3.2), but fast.
 * **Learned nominal policy + CLF** (end of §4.3.2, RMP²-CLF of §3.2.6): a network gives the
   nominal acceleration ``π_θ(x, ẋ)``; the leaf is :func:`mjxrmp.leaves.clf.clf_leaf` with nominal
@@ -27,8 +27,8 @@ function ``(x (m,), ẋ (m,)) -> RMP(M (m, m), f (m,))`` for **one** subtask in 
   Its force satisfies the CLF constraint (3.30) ``ẋᵀf ≤ −ẋᵀ(∇Φ + ξ_G) − α(‖ẋ‖)`` for every
   network parameter and state, by construction (:func:`learned_clf_leaf`).
 * **GDS on the nominal-trajectory potential** (§4.3.1, Fig 4.8b, §5.2): a learned metric
-  ``G(x)`` and the potential of :mod:`mjxrmp.learned.nominal` (eqs 4.9–4.12) in the GDS leaf of eq 4.6
-  (:func:`nominal_gds_leaf`); :func:`natural_gradient_velocity` is the velocity-form policy
+  ``G(x)`` and the potential of :mod:`mjxrmp.learned.nominal` (eqs 4.9–4.12) in the GDS leaf of
+  eq 4.6 (:func:`nominal_gds_leaf`); :func:`natural_gradient_velocity` is the velocity-form policy
   ``v = −G⁻¹∇Φ`` of Remark 5.1.1 / eq 5.1 used to learn the metric from demonstrations (§5.2.2).
 """
 
@@ -43,6 +43,7 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.linalg import cho_solve
 
+from mjxrmp.config import check_choice
 from mjxrmp.core.rmp import RMP
 from mjxrmp.learned.flows import ACTIVATIONS
 from mjxrmp.learned.gds import CholeskyMetric, GramMetric, learned_gds
@@ -102,7 +103,8 @@ def _check_pair(x: jax.Array, xd: jax.Array) -> tuple[jax.Array, jax.Array]:
     xd = jnp.asarray(xd)
     if x.ndim != 1 or xd.shape != x.shape:
         raise ValueError(f"x and xd must be one subtask coordinate of equal shape (m,), got "
-                         f"{x.shape} and {xd.shape}; lift to a family with mjxrmp.leaves.gds.family")
+                         f"{x.shape} and {xd.shape}; lift to a family with "
+                         "mjxrmp.leaves.gds.family")
     return x, xd
 
 
@@ -212,9 +214,7 @@ class DirectRMP(nn.Module):
     param_dtype: Any = jnp.float32
 
     def __post_init__(self) -> None:
-        if self.metric not in METRIC_KINDS:
-            raise ValueError(f"DirectRMP.metric must be one of {METRIC_KINDS}, "
-                             f"got {self.metric!r}")
+        check_choice(self.metric, "DirectRMP.metric", METRIC_KINDS)
         super().__post_init__()
 
     @nn.compact
@@ -271,8 +271,8 @@ class NominalPolicy(nn.Module):
 
 def position_metric(metric: Callable[[jax.Array], jax.Array]) -> Metric:
     """``G(x, ẋ) = metric(x)``: a position-only metric (e.g. a bound
-    :class:`~mjxrmp.learned.gds.CholeskyMetric`) in the ``(x, ẋ)`` signature of :mod:`mjxrmp.leaves.gds`
-    and :mod:`mjxrmp.leaves.clf`."""
+    :class:`~mjxrmp.learned.gds.CholeskyMetric`) in the ``(x, ẋ)`` signature of
+    :mod:`mjxrmp.leaves.gds` and :mod:`mjxrmp.leaves.clf`."""
     return lambda x, xd: metric(x)
 
 

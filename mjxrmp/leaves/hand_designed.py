@@ -1,8 +1,8 @@
 """Hand-designed leaf RMPs of the RMPflow / RMP² family (docs/design.md §4.1, thesis §3.2.1).
 
 Every leaf acts on a *family* of subtasks: ``x`` and ``xd`` have shape ``(n, m)`` and the result is
-an :class:`~mjxrmp.core.rmp.RMP` in natural form with ``M (n, m, m)`` and ``f (n, m)``. Parameters are
-frozen, validated pytree dataclasses whose defaults are the original Franka hand-designed values
+an :class:`~mjxrmp.core.rmp.RMP` in natural form with ``M (n, m, m)`` and ``f (n, m)``. Parameters
+are frozen, validated pytree dataclasses whose defaults are the original Franka hand-designed values
 (the 3-link and residual variants are built in :mod:`mjxrmp.policies`).
 
 Notation: ``σ`` is the logistic sigmoid; the smoothed norm is ``‖v‖_s = √(‖v‖² + 1e-4) − √1e-4``.

@@ -44,7 +44,7 @@ import numpy as np
 
 from mjxrmp.config import param_dataclass
 from mjxrmp.core.rmp import RMP
-from mjxrmp.leaves.gds import gds
+from mjxrmp.leaves.gds import Damping, Leaf, Metric, Potential, gds
 
 __all__ = [
     "CollisionParams",
@@ -153,22 +153,22 @@ def _goal_potential_jvp(primals, tangents):
     return value, dvalue_p + _goal_potential_grad(x, p) @ dx
 
 
-def goal_metric(p: GoalAttractorParams):
+def goal_metric(p: GoalAttractorParams) -> Metric:
     """``G(x, ẋ) = w(x) I`` (position only, so ``M = G``)."""
     return lambda x, xd: goal_weight(p, x) * jnp.eye(x.shape[-1], dtype=x.dtype)
 
 
-def goal_potential(p: GoalAttractorParams):
+def goal_potential(p: GoalAttractorParams) -> Potential:
     """``Φ(x)`` with ``∇Φ = gain·w(x)·tanh(α‖x‖) x/‖x‖`` (exact gradient, quadrature value)."""
     return lambda x: _goal_potential(x, p)
 
 
-def goal_damping(p: GoalAttractorParams):
+def goal_damping(p: GoalAttractorParams) -> Damping:
     """``B(x, ẋ) = η w(x) I``."""
     return lambda x, xd: p.eta * goal_weight(p, x) * jnp.eye(x.shape[-1], dtype=x.dtype)
 
 
-def goal_attractor(p: GoalAttractorParams | None = None):
+def goal_attractor(p: GoalAttractorParams | None = None) -> Leaf:
     """The RMPflow goal-attractor GDS leaf ``(x = y − g (m,), ẋ) -> RMP`` (lift with ``family``)."""
     p = GoalAttractorParams() if p is None else p
     return gds(goal_metric(p), goal_potential(p), goal_damping(p))
@@ -184,7 +184,7 @@ def _collision_w(p: CollisionParams, x: jax.Array) -> jax.Array:
     return 1.0 / xc**4
 
 
-def collision_metric(p: CollisionParams):
+def collision_metric(p: CollisionParams) -> Metric:
     """``G(x, ẋ) = w(x) u(ẋ)`` with ``w = 1/x⁴``, ``u = ε + min(0, ẋ) ẋ`` (1×1)."""
 
     def G(x, xd):
@@ -194,18 +194,18 @@ def collision_metric(p: CollisionParams):
     return G
 
 
-def collision_potential(p: CollisionParams):
+def collision_potential(p: CollisionParams) -> Potential:
     """Barrier ``Φ(x) = ½ α w(x)²``."""
     return lambda x: 0.5 * p.alpha * _collision_w(p, x[0]) ** 2
 
 
-def collision_damping(p: CollisionParams):
+def collision_damping(p: CollisionParams) -> Damping:
     """``B(x, ẋ) = η G(x, ẋ)``."""
     G = collision_metric(p)
     return lambda x, xd: p.eta * G(x, xd)
 
 
-def collision_avoidance(p: CollisionParams | None = None):
+def collision_avoidance(p: CollisionParams | None = None) -> Leaf:
     """The RMPflow collision-avoidance GDS leaf on ``x = d/R − 1`` (m = 1), with the clips."""
     p = CollisionParams() if p is None else p
     base = gds(collision_metric(p), collision_potential(p), collision_damping(p))

@@ -6,8 +6,9 @@ headline table (each row with the device, date and command of the run behind it)
 deviations from the thesis and a link to the study's report. A report is written by hand
 around generated blocks::
 
-    <!-- table: ch8/main -->
-    (rendered from results/ch8/summary.json, table "main"; ``headline`` names the headline)
+    <!-- table: ch8/beta1_150k -->
+    (rendered from results/ch8/summary.json, table "beta1_150k"; the name ``headline`` gives
+    the study's headline table)
     <!-- end table -->
 """
 

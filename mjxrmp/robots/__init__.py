@@ -1,4 +1,10 @@
-"""Robots: the :class:`Robot` description, the planar 3-link and the Franka Panda (docs/design.md §4.2)."""
+"""Robots (docs/design.md §4.2): kinematic descriptions and their MuJoCo models.
+
+* :mod:`~mjxrmp.robots.base` — :class:`Robot`, the kinematic facts and pure-JAX kinematics;
+* :mod:`~mjxrmp.robots.three_link` — the planar 3-link robot (thesis §6.2);
+* :mod:`~mjxrmp.robots.franka` — the Franka Panda (thesis §6.3);
+* :mod:`~mjxrmp.robots.mjcf` — MJCF models of both, generated from the same parameters.
+"""
 
 from __future__ import annotations
 
@@ -22,4 +28,4 @@ def get(name: str) -> Robot:
         raise ValueError(f"unknown robot name={name!r}; valid names are {sorted(ROBOTS)}") from None
 
 
-__all__ = ["FRANKA", "ROBOTS", "THREE_LINK", "Robot", "get"]
+__all__ = ["FRANKA", "ROBOTS", "THREE_LINK", "Robot", "base", "franka", "get", "mjcf", "three_link"]

@@ -1,4 +1,4 @@
-"""Franka Emika Panda (docs/design.md §4.2, §1.1): kinematics and control points in pure JAX.
+"""Franka Emika Panda (thesis §6.3, docs/design.md §4.2): kinematics and control points in JAX.
 
 The chain uses the manufacturer's modified (Craig) Denavit–Hartenberg parameters: the frame of
 joint ``i`` relative to the previous one is ``RotX(α) · TransX(a) · RotZ(q_i) · TransZ(d)``,

@@ -5,8 +5,8 @@ expert trajectories ``D_E`` (recipe ``"expert"``).
 
 Reward data has **no actions**: it is a :class:`RewardData` pytree (observations, rewards,
 next observations, terminal/timeout flags, episode ids, metadata) — a separate type rather than
-a :class:`~offline.data.dataset.Dataset` with NaN or dummy actions, so a learner cannot read an action
-that is not there. (MAHALO's reward network ``g(s, s', terminal)`` reads exactly these
+a :class:`~offline.data.dataset.Dataset` with NaN or dummy actions, so a learner cannot read an
+action that is not there. (MAHALO's reward network ``g(s, s', terminal)`` reads exactly these
 fields.) ``offline.data.dataset.sample`` works on it unchanged (it only needs a ``rewards`` leaf);
 :func:`save_reward_data` / :func:`load_reward_data` store it as a dataset file with
 zero-width actions ``(N, 0)``.
@@ -48,8 +48,8 @@ and diagnostics read them. A PLfO learner (MAHALO, RP, AP, UDS) must not: its me
 (the option of docs/design.md §4.5 that treats collisions as non-absorbing; report both settings).
 
 **Episode ids.** Reward-data episode ids are those the episodes have in
-``offline.data.dataset.concatenate(D_X, D_E)`` (``D_X``'s ``0 … K−1``, then ``D_E``'s ``K …``), so an id
-names the same episode in ``D_A`` and ``D_R`` whenever it is in both;
+``offline.data.dataset.concatenate(D_X, D_E)`` (``D_X``'s ``0 … K−1``, then ``D_E``'s ``K …``), so
+an id names the same episode in ``D_A`` and ``D_R`` whenever it is in both;
 ``metadata["overlap_with_dynamics"]`` says whether ``D_R``'s episodes are also in ``D_A``
 (IL, RL-expert, RL-sample) or not (ILfO, RLfO).
 """
@@ -96,7 +96,8 @@ class RewardData(odata.TransitionTable):
     metadata: odata.Metadata = dataclasses.field(default_factory=odata.Metadata)
 
     def as_dataset(self) -> odata.Dataset:
-        """A :class:`~offline.data.dataset.Dataset` with zero-width actions ``(N, 0)`` (for files)."""
+        """A :class:`~offline.data.dataset.Dataset` with zero-width actions ``(N, 0)`` (for
+        files)."""
         n = self.size
         acts = np.zeros((n, 0), np.asarray(self.observations).dtype)
         return odata.Dataset(self.observations, acts, self.rewards, self.next_observations,
@@ -177,7 +178,7 @@ def _num_episodes(ds: odata.Dataset) -> int:
     return int(odata.episode_statistics(ds)[1]["num_episodes"])
 
 
-#: Environment facts a dataset records (:func:`offline.data.collect.environment_metadata`) that the
+#: Environment facts a dataset records (:func:`offline.data.rollouts.environment_metadata`) that the
 #: scenario's dynamics data carries at its top level when its parts agree on them.
 ENVIRONMENT_KEYS = ("env", "env_kwargs", "horizon", "action_limit", "reward_range",
                     "observation_layout")
@@ -208,8 +209,9 @@ def make(name: str, mixed: odata.Dataset, expert: odata.Dataset | None = None, *
     """``(dynamics_data, reward_data)`` of PLfO scenario ``name`` (module docstring table).
 
     ``mixed`` is ``D_X``, ``expert`` ``D_E`` (not needed for RL-sample); ``key`` and
-    ``fraction`` choose RL-sample's labelled episodes (:func:`offline.data.dataset.split_by_episode`);
-    ``max_reward`` is ``R_max`` for ILfO/IL (default: the expert metadata's reward range).
+    ``fraction`` choose RL-sample's labelled episodes
+    (:func:`offline.data.dataset.split_by_episode`); ``max_reward`` is ``R_max`` for ILfO/IL
+    (default: the expert metadata's reward range).
     """
     if name not in SCENARIOS:
         raise ValueError(f"unknown scenario name={name!r}; valid scenarios are "
@@ -264,27 +266,32 @@ def same_dynamics(name: str) -> tuple[str, ...]:
     return tuple(s for s in SCENARIOS if (s in WITH_EXPERT_ACTIONS) == group)
 
 
-def ilfo(mixed: odata.Dataset, expert: odata.Dataset, **kwargs):
+def ilfo(mixed: odata.Dataset, expert: odata.Dataset, **kwargs: Any
+         ) -> tuple[odata.Dataset, RewardData]:
     """ILfO: dynamics ``D_X``; reward data = expert states labelled ``R_max``."""
     return make("ILfO", mixed, expert, **kwargs)
 
 
-def il(mixed: odata.Dataset, expert: odata.Dataset, **kwargs):
+def il(mixed: odata.Dataset, expert: odata.Dataset, **kwargs: Any
+       ) -> tuple[odata.Dataset, RewardData]:
     """IL: dynamics ``D_X ∪ D_E``; reward data = expert states labelled ``R_max``."""
     return make("IL", mixed, expert, **kwargs)
 
 
-def rlfo(mixed: odata.Dataset, expert: odata.Dataset, **kwargs):
+def rlfo(mixed: odata.Dataset, expert: odata.Dataset, **kwargs: Any
+         ) -> tuple[odata.Dataset, RewardData]:
     """RLfO: dynamics ``D_X``; reward data = expert states with their true rewards."""
     return make("RLfO", mixed, expert, **kwargs)
 
 
-def rl_expert(mixed: odata.Dataset, expert: odata.Dataset, **kwargs):
+def rl_expert(mixed: odata.Dataset, expert: odata.Dataset, **kwargs: Any
+              ) -> tuple[odata.Dataset, RewardData]:
     """RL-expert: dynamics ``D_X ∪ D_E``; reward data = expert states with true rewards."""
     return make("RL-expert", mixed, expert, **kwargs)
 
 
-def rl_sample(mixed: odata.Dataset, *, key: jax.Array, **kwargs):
+def rl_sample(mixed: odata.Dataset, *, key: jax.Array, **kwargs: Any
+              ) -> tuple[odata.Dataset, RewardData]:
     """RL-sample: dynamics ``D_X``; reward data = a random ``fraction`` of its episodes."""
     return make("RL-sample", mixed, key=key, **kwargs)
 

@@ -1,5 +1,5 @@
 """Policy evaluation inside the compiled graph for the offline learners (thesis §7.4, §8.4;
-docs/design.md §2.4; issue 6 item 5).
+docs/design.md §2.4).
 
 :func:`make_evaluator` builds an :class:`Evaluator` for one reaching environment
 (:func:`envs.make` name) and a number of episodes. ``evaluator.evaluate(act, params, key)``
@@ -45,8 +45,8 @@ import numpy as np
 
 from envs.evaluate import hand_designed_policy, make_rollout
 from envs.reaching import ReachEnv
-from offline.data.collect import make_env
-from offline.learners.base import check_positive_int
+from mjxrmp.config import check_int
+from offline.data.rollouts import make_env
 
 #: Default number of episodes of the reference returns.
 REFERENCE_EPISODES = 256
@@ -173,8 +173,8 @@ def make_evaluator(env_name: str, num_episodes: int, *, horizon: int | None = No
     ``ValueError`` if the expert does not beat the random policy there (e.g. a horizon too
     short for the expert to reach the goal), where the normalised score is meaningless.
     """
-    num_episodes = check_positive_int(num_episodes, "num_episodes")
-    reference_episodes = check_positive_int(reference_episodes, "reference_episodes")
+    num_episodes = check_int(num_episodes, "num_episodes")
+    reference_episodes = check_int(reference_episodes, "reference_episodes")
     if isinstance(reference_seed, bool) or not isinstance(reference_seed, int | np.integer):
         raise ValueError(f"reference_seed must be an integer, got {reference_seed!r}")
     if env_kwargs is not None and not isinstance(env_kwargs, Mapping):
@@ -184,7 +184,7 @@ def make_evaluator(env_name: str, num_episodes: int, *, horizon: int | None = No
         raise ValueError(f"env_name={env_name!r} is not a reaching environment with a "
                          f"hand-designed expert (envs.reaching.ReachEnv); the normalised score "
                          f"needs one")
-    horizon = env.horizon if horizon is None else check_positive_int(horizon, "horizon")
+    horizon = env.horizon if horizon is None else check_int(horizon, "horizon")
     ev = Evaluator(env_name, env, num_episodes, horizon, reference_episodes,
                    int(reference_seed))
     key = jax.random.PRNGKey(int(reference_seed))

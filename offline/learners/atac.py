@@ -45,27 +45,36 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Sequence
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
 
+from mjxrmp.config import check_bool, check_choice, check_finite, check_float, check_int
 from offline.data import dataset as odata
 from offline.data import scenarios
+from offline.learners.atac_losses import value_bounds
+from offline.learners.atac_step import (
+    ATACCore,
+    ATACState,
+    RewardModel,
+    atac_step,
+    dataset_rewards,
+)
 from offline.learners.base import (
     ObservationNormalizer,
     Trainer,
     action_scale,
-    check_bool,
+    check_network,
     normalized_dataset,
     observation_normalizer,
     policy_act,
     scan_steps,
 )
-from offline.learners.networks import FROBENIUS_BOUND, QEnsemble, polyak, project_frobenius
-from offline.learners.residual_actor import apply_actor, check_actor, dataset_bases, make_actor
+from offline.learners.networks import FROBENIUS_BOUND, QEnsemble, project_frobenius
+from offline.learners.residual_actor import check_actor, dataset_bases, make_actor
 
 PESSIMISM = ("relative", "absolute")
 
@@ -82,7 +91,8 @@ class ATACConfig:
     ``"absolute"`` PSPI. ``remove_terminals`` treats terminals as timeouts; ``clip_v`` clips
     the backups to ``[V_min, V_max]`` computed from the reward range.
     ``normalize_observations`` standardises the states (module docstring; default off).
-    ``actor`` is the actor class (:data:`offline.learners.residual_actor.ACTORS`; default ``"mlp"``).
+    ``actor`` is the actor class (:data:`offline.learners.residual_actor.ACTORS`; default
+    ``"mlp"``).
     """
 
     hidden_sizes: Sequence[int] = (256, 256, 256)
@@ -109,140 +119,29 @@ class ATACConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden_sizes", tuple(self.hidden_sizes))
-        if not self.hidden_sizes or any(not isinstance(h, int) or h < 1
-                                        for h in self.hidden_sizes):
-            raise ValueError(f"hidden_sizes must be a non-empty sequence of positive integers, "
-                             f"got {self.hidden_sizes!r}")
-        _check_int("num_critics", self.num_critics, 1)
-        _check_int("batch_size", self.batch_size, 1)
-        _check_int("warmstart_steps", self.warmstart_steps, 0)
-        _check_int("num_steps", self.num_steps, 1)
+        n = type(self).__name__
+        object.__setattr__(self, "hidden_sizes", check_network(self.hidden_sizes, None, f"{n}."))
+        for name in ("num_critics", "batch_size", "num_steps"):
+            check_int(getattr(self, name), f"{n}.{name}")
+        check_int(self.warmstart_steps, f"{n}.warmstart_steps", minimum=0)
         for name in ("critic_lr", "actor_lr", "alpha_lr", "bc_lr", "init_temperature",
                      "norm_bound"):
-            _check_positive(name, getattr(self, name))
-        if not (isinstance(self.beta, int | float) and math.isfinite(self.beta)
-                and self.beta >= 0):
-            raise ValueError(f"beta must be a finite number >= 0, got {self.beta!r}")
+            check_float(getattr(self, name), f"{n}.{name}")
+        check_float(self.beta, f"{n}.beta", allow_zero=True)
         for name in ("tau", "dqra_weight"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and 0.0 <= v <= 1.0):
-                raise ValueError(f"{name} must lie in [0, 1], got {v!r}")
-        if not (isinstance(self.discount, int | float) and 0.0 <= self.discount < 1.0):
-            raise ValueError(f"discount must lie in [0, 1), got {self.discount!r}")
-        if self.target_entropy is not None and not math.isfinite(self.target_entropy):
-            raise ValueError(f"target_entropy must be finite or None, got "
-                             f"{self.target_entropy!r}")
-        if self.pessimism not in PESSIMISM:
-            raise ValueError(f"pessimism must be one of {list(PESSIMISM)}, got "
-                             f"{self.pessimism!r}")
-        check_bool(self.normalize_observations, "normalize_observations")
+            if check_float(getattr(self, name), f"{n}.{name}", allow_zero=True) > 1.0:
+                raise ValueError(f"{n}.{name} must lie in [0, 1], got {getattr(self, name)!r}")
+        if check_float(self.discount, f"{n}.discount", allow_zero=True) >= 1.0:
+            raise ValueError(f"{n}.discount must lie in [0, 1), got {self.discount!r}")
+        check_finite(self.target_entropy, f"{n}.target_entropy", allow_none=True)
+        check_choice(self.pessimism, f"{n}.pessimism", PESSIMISM)
+        for name in ("remove_terminals", "clip_v", "normalize_observations"):
+            check_bool(getattr(self, name), f"{n}.{name}")
         check_actor(self.actor, self.normalize_observations)
-
-
-def _check_int(name: str, value: Any, minimum: int) -> None:
-    if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-
-
-def _check_positive(name: str, value: Any) -> None:
-    if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-
-
-# --------------------------------------------------------------------------------------------
-# Loss terms (pure functions; tested against float64 NumPy references)
-
-
-def combine(loss: jax.Array, reg: jax.Array, w: jax.Array | float) -> jax.Array:
-    """``loss/w + reg`` if ``w > 1`` else ``loss + w·reg`` (docs/design.md §4.5; eq 7.1's weighted
-    sum ``loss + w·reg`` rescaled by ``1/w`` for large ``w``). ``w`` may be traced; the unused
-    branch never divides by a ``w ≤ 1``, so gradients stay finite at ``w = 0``."""
-    w = jnp.asarray(w)
-    big = w > 1.0
-    return jnp.where(big, loss / jnp.where(big, w, 1.0) + reg, loss + w * reg)
-
-
-def value_bounds(reward_min: float, reward_max: float, discount: float) -> tuple[float, float]:
-    """``(V_min, V_max) = (min(−1/(1−γ), 2 r_min/(1−γ)), max(1/(1−γ), 2 r_max/(1−γ)))``
-    (docs/design.md §4.5, the ``clip_v`` option)."""
-    h = 1.0 / (1.0 - discount)
-    return min(-h, 2.0 * reward_min * h), max(h, 2.0 * reward_max * h)
-
-
-def _clip_straight_through(x: jax.Array, bounds: tuple[float, float] | None) -> jax.Array:
-    if bounds is None:
-        return x
-    return x + jax.lax.stop_gradient(jnp.clip(x, *bounds) - x)
-
-
-def dqra_loss(q: jax.Array, q_next: jax.Array, q_next_target: jax.Array, rewards: jax.Array,
-              terminals: jax.Array, discount: float, w: float,
-              bounds: tuple[float, float] | None = None) -> jax.Array:
-    """Per-critic DQRA Bellman loss of eq 7.11, shape ``(K,)``.
-
-    ``q = f_i(s, a)`` and ``q_next = f_i(s', a')`` are ``(B, K)``, ``q_next_target =
-    min_j f̄_j(s', a')`` is ``(B,)``; ``rewards`` / ``terminals`` ``(B,)``. Returns
-    ``w·mean (q − sg(y̅))² + (1 − w)·mean (q − y)²`` with ``y̅ = r + γ(1−d) q_next_target``
-    (stop-gradient) and ``y = r + γ(1−d) q_next`` (gradient flows into ``q_next``: the residual
-    algorithm). ``bounds`` clips both backups (straight-through gradient).
-    """
-    cont = discount * (1.0 - terminals.astype(q.dtype))
-    y_target = _clip_straight_through(rewards + cont * q_next_target, bounds)
-    y_resid = _clip_straight_through(rewards[:, None] + cont[:, None] * q_next, bounds)
-    target_term = jnp.mean(jnp.square(q - jax.lax.stop_gradient(y_target)[:, None]), axis=0)
-    resid_term = jnp.mean(jnp.square(q - y_resid), axis=0)
-    return w * target_term + (1.0 - w) * resid_term
-
-
-def pessimism_loss(q_pi: jax.Array, q_data: jax.Array, relative: bool = True) -> jax.Array:
-    """Per-critic pessimism term (eq 7.2 on a minibatch), shape ``(K,)``: relative (ATAC)
-    ``mean f_i(s, a_π) − f_i(s, a)`` or absolute (PSPI) ``mean f_i(s, a_π)``; inputs
-    ``(B, K)`` (``a_π`` already detached by the caller)."""
-    diff = q_pi - q_data if relative else q_pi
-    return jnp.mean(diff, axis=0)
-
-
-# --------------------------------------------------------------------------------------------
-# Reward players
-
-
-class RewardModel(NamedTuple):
-    """Where the Bellman backups' rewards come from.
-
-    ``init(key) -> params`` (a pytree, ``{}`` when there are none; RP fits its frozen network
-    here); ``predict(params, batch) -> (B,)`` rewards for a dynamics minibatch (detached by the
-    core); ``fit_loss(params, key) -> scalar`` the reward-data loss of a reward player trained
-    online (MAHALO's ``E_{D_R}(g)``, eq 7.3), or ``None`` for a fixed reward;
-    ``weight(beta) -> α`` the weight of ``fit_loss`` in Algorithm 3 line 6.
-    """
-
-    init: Callable[[jax.Array], Any]
-    predict: Callable[[Any, odata.Dataset], jax.Array]
-    fit_loss: Callable[[Any, jax.Array], jax.Array] | None = None
-    weight: Callable[[jax.Array], jax.Array] | None = None
-    lr: float = 5e-4
-
-
-def dataset_rewards() -> RewardModel:
-    """The reward player that reads the minibatch's ``rewards`` (ATAC / PSPI / Oracle / UDS)."""
-    return RewardModel(init=lambda key: {}, predict=lambda params, batch: batch.rewards)
 
 
 # --------------------------------------------------------------------------------------------
 # The core
-
-
-class ATACState(NamedTuple):
-    """Learner state: ``params`` {"actor", "critic", "log_alpha", "reward"}, the target
-    critics, the optimiser states {"actor", "critic", "alpha", "reward"}, the PRNG key (step
-    ``t`` uses ``fold_in(key, t)``), the step counter and β (traced, so vmap over β works)."""
-
-    params: dict
-    target_critic: Any
-    opt_states: dict
-    key: jax.Array
-    step: jax.Array
-    beta: jax.Array
 
 
 def _as_float32(x: Any) -> Any:
@@ -285,146 +184,61 @@ def make_core(dynamics: odata.Dataset, config: ATACConfig, reward: RewardModel, 
         raise ValueError("a trained reward player (fit_loss) needs a weight(beta) function")
     scale = action_scale(dynamics)
     norm = observation_normalizer(dynamics, config.normalize_observations, normalizer)
-    ds = prepare_dataset(dynamics, config.remove_terminals, norm)
-    obs_size, act_size = ds.observation_size, ds.action_size
-    if reward_range is None and config.clip_v:
-        r = np.asarray(ds.rewards)
-        reward_range = (float(r.min()), float(r.max()))
-    bounds = value_bounds(*reward_range, config.discount) if config.clip_v else None
-    target_entropy = (-float(act_size) if config.target_entropy is None
-                      else float(config.target_entropy))
-    log_alpha0 = jnp.asarray(math.log(config.init_temperature), jnp.float32)
-    hidden = config.hidden_sizes
-    actor = make_actor(config.actor, dynamics.metadata, act_size, hidden)
-    bases = dataset_bases(actor, ds.observations, ds.next_observations)
-    critic = QEnsemble(config.num_critics, hidden_sizes=hidden)
-    actor_adam = optax.scale_by_adam()
-    critic_opt = optax.adam(config.critic_lr)
-    alpha_opt = optax.adam(config.alpha_lr)
-    reward_opt = optax.adam(reward.lr)
-    relative = config.pessimism == "relative"
-    warm = config.warmstart_steps
-    gamma, w, bsz = config.discount, config.dqra_weight, config.batch_size
+    core = _build_core(dynamics, config, reward, reward_range, norm)
+    obs_size, act_size = core.ds.observation_size, core.ds.action_size
 
     def init(key: jax.Array, beta: Any = None) -> ATACState:
         k_actor, k_critic, k_reward, k_run = jax.random.split(key, 4)
         params = {
-            "actor": actor.init(k_actor, jnp.zeros((1, obs_size), jnp.float32)),
-            "critic": critic.init(k_critic, jnp.zeros((1, obs_size), jnp.float32),
-                                  jnp.zeros((1, act_size), jnp.float32)),
-            "log_alpha": log_alpha0,
+            "actor": core.actor.init(k_actor, jnp.zeros((1, obs_size), jnp.float32)),
+            "critic": core.critic.init(k_critic, jnp.zeros((1, obs_size), jnp.float32),
+                                       jnp.zeros((1, act_size), jnp.float32)),
+            "log_alpha": core.log_alpha0,
             "reward": reward.init(k_reward),
         }
         params["critic"] = project_frobenius(params["critic"], config.norm_bound)
-        opt_states = {"actor": actor_adam.init(params["actor"]),
-                      "critic": critic_opt.init(params["critic"]),
-                      "alpha": alpha_opt.init(log_alpha0),
-                      "reward": reward_opt.init(params["reward"])}
+        opt_states = {"actor": core.actor_adam.init(params["actor"]),
+                      "critic": core.critic_opt.init(params["critic"]),
+                      "alpha": core.alpha_opt.init(core.log_alpha0),
+                      "reward": core.reward_opt.init(params["reward"])}
         b = config.beta if beta is None else beta
         return ATACState(params, params["critic"], opt_states, k_run,
                          jnp.zeros((), jnp.int32), jnp.asarray(b, jnp.float32))
 
-    def step(state: ATACState, key: jax.Array) -> tuple[ATACState, dict]:
-        in_warm = state.step < warm
-        # The warm-start switch: fresh actor Adam moments, temperature reset.
-        switch = state.step == warm
-        fresh = (actor_adam.init(state.params["actor"]), log_alpha0, alpha_opt.init(log_alpha0))
-        current = (state.opt_states["actor"], state.params["log_alpha"],
-                   state.opt_states["alpha"])
-        actor_os, log_alpha, alpha_os = jax.tree.map(
-            lambda f, c: jnp.where(switch, f, c), fresh, current)
-
-        k_batch, k_next, k_pi, k_reward = jax.random.split(key, 4)
-        batch, base = odata.sample_with(ds, bases, k_batch, bsz)
-        p = state.params
-        a_next, _ = apply_actor(actor, p["actor"], batch.next_observations,
-                                base.next_observations).sample(k_next)
-        a_next = jax.lax.stop_gradient(a_next)
-        pi = apply_actor(actor, p["actor"], batch.observations, base.observations)
-        a_pi, logp_pi = pi.sample(k_pi)
-        q_next_target = jnp.min(critic.apply(state.target_critic, batch.next_observations,
-                                             a_next), axis=-1)
-
-        def bellman(critic_params, rewards):
-            q = critic.apply(critic_params, batch.observations, batch.actions)
-            q_next = critic.apply(critic_params, batch.next_observations, a_next)
-            return dqra_loss(q, q_next, q_next_target, rewards, batch.terminals, gamma, w,
-                             bounds), q
-
-        rewards = jax.lax.stop_gradient(reward.predict(p["reward"], batch))
-
-        def critic_loss(critic_params):
-            e, q = bellman(critic_params, rewards)
-            q_pi = critic.apply(critic_params, batch.observations, jax.lax.stop_gradient(a_pi))
-            pess = pessimism_loss(q_pi, q, relative)
-            game = jnp.sum(combine(pess, e, state.beta))
-            loss = jnp.where(in_warm, jnp.sum(e), game)
-            return loss, {"bellman": jnp.mean(e), "pessimism": jnp.mean(pess),
-                          "q_data": jnp.mean(q), "q_pi": jnp.mean(q_pi)}
-
-        (c_loss, metrics), c_grad = jax.value_and_grad(critic_loss, has_aux=True)(p["critic"])
-        metrics["critic_loss"] = c_loss
-        new_params, new_os = dict(p), dict(state.opt_states)
-
-        if reward.fit_loss is not None:
-            frozen_critic = jax.lax.stop_gradient(p["critic"])
-
-            def reward_loss(reward_params):
-                fit = reward.fit_loss(reward_params, k_reward)
-                e, _ = bellman(frozen_critic, reward.predict(reward_params, batch))
-                # Algorithm 3 line 6 divided by α (Adam is invariant to the loss scale).
-                return fit + state.beta / reward.weight(state.beta) * jnp.sum(e), fit
-
-            (r_loss, fit), r_grad = jax.value_and_grad(reward_loss, has_aux=True)(p["reward"])
-            upd, new_os["reward"] = reward_opt.update(r_grad, state.opt_states["reward"])
-            new_params["reward"] = optax.apply_updates(p["reward"], upd)
-            metrics.update(reward_loss=r_loss, reward_fit=fit)
-
-        upd, new_os["critic"] = critic_opt.update(c_grad, state.opt_states["critic"])
-        new_critic = project_frobenius(optax.apply_updates(p["critic"], upd), config.norm_bound)
-        new_params["critic"] = new_critic
-        new_target = polyak(state.target_critic, new_critic, config.tau)
-
-        entropy = -jnp.mean(logp_pi)
-        a_grad = jax.grad(lambda la: la * (jax.lax.stop_gradient(entropy) - target_entropy))(
-            log_alpha)
-        upd, new_os["alpha"] = alpha_opt.update(a_grad, alpha_os)
-        new_params["log_alpha"] = optax.apply_updates(log_alpha, upd)
-        alpha = jnp.exp(new_params["log_alpha"])
-
-        def actor_loss(actor_params):
-            dist = apply_actor(actor, actor_params, batch.observations, base.observations)
-
-            def bc():
-                return -jnp.mean(dist.log_prob(batch.actions))
-
-            def game():
-                a, logp = dist.sample(k_pi)
-                q1 = critic.apply(new_critic, batch.observations, a)[..., 0]
-                return combine(-jnp.mean(q1), jnp.mean(logp), alpha)
-
-            return jax.lax.cond(in_warm, bc, game)
-
-        act_loss, act_grad = jax.value_and_grad(actor_loss)(p["actor"])
-        upd, new_os["actor"] = actor_adam.update(act_grad, actor_os)
-        lr = jnp.where(in_warm, config.bc_lr, config.actor_lr)
-        new_params["actor"] = jax.tree.map(lambda x, u: x - lr * u, p["actor"], upd)
-        metrics.update(actor_loss=act_loss, alpha=alpha, entropy=entropy)
-        new_state = ATACState(new_params, new_target, new_os, state.key, state.step, state.beta)
-        return new_state, metrics
-
     def run(state: ATACState, n: int) -> tuple[ATACState, dict]:
-        return scan_steps(step, state, n)
+        return scan_steps(lambda s, k: atac_step(core, s, k), state, n)
 
-    return Trainer(init=init, run=run, act=policy_act(actor, scale, norm),
+    return Trainer(init=init, run=run, act=policy_act(core.actor, scale, norm),
                    num_steps=config.num_steps)
+
+
+def _build_core(dynamics: odata.Dataset, config: ATACConfig, reward: RewardModel,
+                reward_range: tuple[float, float] | None, norm: ObservationNormalizer
+                ) -> ATACCore:
+    """The prepared data, networks, optimisers and constants of :func:`make_core`."""
+    ds = prepare_dataset(dynamics, config.remove_terminals, norm)
+    if reward_range is None and config.clip_v:
+        r = np.asarray(ds.rewards)
+        reward_range = (float(r.min()), float(r.max()))
+    actor = make_actor(config.actor, dynamics.metadata, ds.action_size, config.hidden_sizes)
+    return ATACCore(
+        config=config, reward=reward, ds=ds,
+        bases=dataset_bases(actor, ds.observations, ds.next_observations), actor=actor,
+        critic=QEnsemble(config.num_critics, hidden_sizes=config.hidden_sizes),
+        actor_adam=optax.scale_by_adam(), critic_opt=optax.adam(config.critic_lr),
+        alpha_opt=optax.adam(config.alpha_lr), reward_opt=optax.adam(reward.lr),
+        bounds=value_bounds(*reward_range, config.discount) if config.clip_v else None,
+        target_entropy=(-float(ds.action_size) if config.target_entropy is None
+                        else float(config.target_entropy)),
+        log_alpha0=jnp.asarray(math.log(config.init_temperature), jnp.float32))
 
 
 def check_no_reward_data(reward_data: Any, learner: str) -> None:
     """Raise the API's clear error when a learner that uses no reward data is given some."""
     if reward_data is not None:
         raise ValueError(f"{learner} uses the rewards of the dynamics data and takes no "
-                         f"reward_data (use offline.learners.mahalo or offline.learners.plfo_baselines for PLfO)")
+                         f"reward_data (use offline.learners.mahalo or "
+                         f"offline.learners.plfo_baselines for PLfO)")
 
 
 def make_train(dynamics: odata.Dataset, config: ATACConfig, *,
@@ -437,8 +251,8 @@ def make_train(dynamics: odata.Dataset, config: ATACConfig, *,
     The Bellman backups use ``dynamics.rewards`` or, when given, ``reward_fn(batch) -> (B,)``
     (a fixed reward model applied to each minibatch). Dynamics data of a PLfO scenario (its
     metadata says ``rewards_visible: false``) is refused without a ``reward_fn``: its rewards
-    are hidden; the Oracle baseline (:func:`offline.learners.plfo_baselines.make_train_oracle`) reads
-    them on purpose. ``normalizer``: the observation statistics when
+    are hidden; the Oracle baseline (:func:`offline.learners.plfo_baselines.make_train_oracle`)
+    reads them on purpose. ``normalizer``: the observation statistics when
     ``config.normalize_observations`` (default: those of ``dynamics``; :func:`make_core`).
     ``reward_fn`` receives minibatches with standardised states when the option is on.
     """
@@ -462,12 +276,8 @@ __all__ = [
     "ATACState",
     "RewardModel",
     "check_no_reward_data",
-    "combine",
     "dataset_rewards",
-    "dqra_loss",
     "make_core",
     "make_train",
-    "pessimism_loss",
     "prepare_dataset",
-    "value_bounds",
 ]

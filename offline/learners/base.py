@@ -24,8 +24,8 @@ Shared plumbing of the learners: :func:`scan_steps` (``run``: ``n`` steps in one
 step ``t``'s key ``fold_in(state.key, state.step)``, so ``run(run(s, a), b) == run(s, a + b)``),
 :func:`normalized_dataset` (validated, on the device, actions divided by the action limit,
 observations optionally standardised), :func:`policy_act` (deterministic tanh-Gaussian action in
-environment units), :func:`adam_step` and the config validators (bad input → ``ValueError``
-naming the argument).
+environment units), :func:`adam_step` and :func:`check_network` (the configs validate their other
+fields with :mod:`mjxrmp.config`'s validators: bad input → ``ValueError`` naming the field).
 
 **Observation standardisation** (every learner's ``normalize_observations`` option, default
 off): :class:`ObservationNormalizer` ``(s − μ) / σ`` with the per-feature mean ``μ`` and standard
@@ -39,7 +39,7 @@ identity and nothing is computed: results are bit-identical to a learner without
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import flax.linen as nn
@@ -48,6 +48,7 @@ import numpy as np
 import optax
 
 from agents.ppo.networks import activation_fn
+from mjxrmp.config import check_bool, check_sizes
 from offline.data import dataset as odata
 from offline.data.dataset import Dataset
 
@@ -83,49 +84,15 @@ def action_scale(dataset: Dataset) -> float:
 
 
 # --------------------------------------------------------------------------------------------
-# Config validators (bad input -> ValueError naming the argument)
-
-
-def check_positive_int(value: Any, name: str) -> int:
-    """``value`` as an ``int`` if it is a positive integer (not a bool), else ``ValueError``."""
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
-
-
-def check_positive_float(value: Any, name: str) -> float:
-    """``value`` as a ``float`` if it is a finite number > 0, else ``ValueError``."""
-    if isinstance(value, bool) or not isinstance(value, int | float | np.number) or not (
-            np.isfinite(value) and value > 0):
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-    return float(value)
-
-
-def check_fraction(value: Any, name: str, *, closed: bool = False) -> float:
-    """``value`` as a ``float`` if it lies in ``(0, 1)`` (``(0, 1]`` when ``closed``)."""
-    ok = (not isinstance(value, bool) and isinstance(value, int | float | np.number)
-          and value > 0.0 and (value <= 1.0 if closed else value < 1.0))
-    if not ok:
-        raise ValueError(f"{name} must lie in (0, 1{']' if closed else ')'}, got {value!r}")
-    return float(value)
-
-
-def check_bool(value: Any, name: str) -> bool:
-    """``value`` if it is a ``bool``, else ``ValueError`` naming ``name``."""
-    if not isinstance(value, bool | np.bool_):
-        raise ValueError(f"{name} must be a bool, got {value!r}")
-    return bool(value)
+# Network settings
 
 
 def check_network(hidden_sizes: Any, activation: Any, prefix: str = "") -> tuple[int, ...]:
-    """Validated hidden sizes (a non-empty sequence of positive ints) and activation name."""
-    name = f"{prefix}hidden_sizes"
-    if isinstance(hidden_sizes, str | bytes) or not isinstance(hidden_sizes, Sequence) or (
-            len(hidden_sizes) == 0):
-        raise ValueError(f"{name} must be a non-empty sequence of positive integers, got "
-                         f"{hidden_sizes!r}")
-    sizes = tuple(check_positive_int(h, f"{name}[{i}]") for i, h in enumerate(hidden_sizes))
-    activation_fn(activation)
+    """Validated hidden sizes (a non-empty sequence of positive ints) and activation name
+    (``None``: the network has no activation setting); names start with ``prefix``."""
+    sizes = check_sizes(hidden_sizes, f"{prefix}hidden_sizes")
+    if activation is not None:
+        activation_fn(activation)
     return sizes
 
 
@@ -260,7 +227,6 @@ def adam_step(optimizer: optax.GradientTransformation, params: Any, opt_state: A
     return optax.apply_updates(params, updates), opt_state
 
 
-
 __all__ = [
     "STD_FLOOR",
     "ObservationNormalizer",
@@ -268,11 +234,7 @@ __all__ = [
     "action_scale",
     "actor_params",
     "adam_step",
-    "check_bool",
-    "check_fraction",
     "check_network",
-    "check_positive_float",
-    "check_positive_int",
     "normalized_dataset",
     "observation_normalizer",
     "policy_act",

@@ -6,10 +6,10 @@ baselines of thesis §7.4 ("Baselines": BC for IL, BCO [Torabi et al., 2018] for
 
     L(θ) = −E_{(s, a)∼D} log π_θ(a / action_limit | s),
 
-with the actor of the offline learners (:class:`offline.learners.tanh_gaussian.TanhGaussianPolicy`, 3×256
-ReLU, docs/design.md §4.5) and Adam. ``BCConfig.data`` chooses ``D``: ``"all"`` (the dynamics data)
-or ``"reward_episodes"`` — only the dynamics episodes that also appear in the reward data (same
-episode ids, :mod:`offline.data.scenarios`), i.e. the expert demonstrations of IL / RL-expert.
+with the actor of the offline learners (:class:`offline.learners.tanh_gaussian.TanhGaussianPolicy`,
+3×256 ReLU, docs/design.md §4.5) and Adam. ``BCConfig.data`` chooses ``D``: ``"all"`` (the dynamics
+data) or ``"reward_episodes"`` — only the dynamics episodes that also appear in the reward data
+(same episode ids, :mod:`offline.data.scenarios`), i.e. the expert demonstrations of IL / RL-expert.
 
 **BCO** clones actions the data does not have: an inverse-dynamics model
 (:mod:`offline.learners.inverse_dynamics`) is trained on the dynamics data, labels the reward data's
@@ -41,16 +41,14 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from mjxrmp.config import check_bool, check_choice, check_float, check_int, check_parts
 from offline.data import dataset as odata
 from offline.data.scenarios import RewardData, validate_reward_data
 from offline.learners.base import (
     Trainer,
     action_scale,
     adam_step,
-    check_bool,
     check_network,
-    check_positive_float,
-    check_positive_int,
     normalized_dataset,
     observation_normalizer,
     policy_act,
@@ -73,7 +71,8 @@ BC_DATA = ("all", "reward_episodes")
 class BCConfig:
     """BC (module docstring). ``data``: ``"all"`` or ``"reward_episodes"`` (needs reward
     data); ``normalize_observations`` standardises the actor's states (default off);
-    ``actor`` is the actor class (:data:`offline.learners.residual_actor.ACTORS`; default ``"mlp"``)."""
+    ``actor`` is the actor class (:data:`offline.learners.residual_actor.ACTORS`; default
+    ``"mlp"``)."""
 
     hidden_sizes: tuple[int, ...] = (256, 256, 256)
     activation: str = "relu"
@@ -85,14 +84,14 @@ class BCConfig:
     actor: str = "mlp"
 
     def __post_init__(self) -> None:
+        n = type(self).__name__
         object.__setattr__(self, "hidden_sizes", check_network(self.hidden_sizes,
-                                                               self.activation))
-        check_positive_float(self.learning_rate, "learning_rate")
-        check_positive_int(self.batch_size, "batch_size")
-        check_positive_int(self.num_steps, "num_steps")
-        if self.data not in BC_DATA:
-            raise ValueError(f"data must be one of {BC_DATA}, got {self.data!r}")
-        check_bool(self.normalize_observations, "normalize_observations")
+                                                               self.activation, f"{n}."))
+        check_float(self.learning_rate, f"{n}.learning_rate")
+        check_int(self.batch_size, f"{n}.batch_size")
+        check_int(self.num_steps, f"{n}.num_steps")
+        check_choice(self.data, f"{n}.data", BC_DATA)
+        check_bool(self.normalize_observations, f"{n}.normalize_observations")
         check_actor(self.actor, self.normalize_observations)
 
 
@@ -105,11 +104,7 @@ class BCOConfig:
     inverse: InverseDynamicsConfig = dataclasses.field(default_factory=InverseDynamicsConfig)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.bc, BCConfig):
-            raise ValueError(f"bc must be a BCConfig, got {type(self.bc).__name__}")
-        if not isinstance(self.inverse, InverseDynamicsConfig):
-            raise ValueError(f"inverse must be an InverseDynamicsConfig, got "
-                             f"{type(self.inverse).__name__}")
+        check_parts(self, bc=BCConfig, inverse=InverseDynamicsConfig)
         if self.bc.data != "all":
             raise ValueError(f"bc.data must be 'all' for BCO (it clones the labelled reward "
                              f"data), got {self.bc.data!r}")

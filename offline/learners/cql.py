@@ -43,16 +43,13 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from mjxrmp.config import check_bool, check_finite, check_float, check_fraction, check_int
 from offline.data import dataset as odata
 from offline.data.scenarios import RewardData
 from offline.learners.base import (
     Trainer,
     adam_step,
-    check_bool,
-    check_fraction,
     check_network,
-    check_positive_float,
-    check_positive_int,
     normalized_dataset,
     policy_act,
     scan_steps,
@@ -94,23 +91,19 @@ class CQLConfig:
     actor: str = "mlp"
 
     def __post_init__(self) -> None:
+        n = type(self).__name__
         object.__setattr__(self, "hidden_sizes", check_network(self.hidden_sizes,
-                                                               self.activation))
+                                                               self.activation, f"{n}."))
         for name in ("actor_lr", "critic_lr", "alpha_lr", "min_q_weight", "temperature"):
-            check_positive_float(getattr(self, name), name)
+            check_float(getattr(self, name), f"{n}.{name}")
         for name in ("batch_size", "num_steps", "num_samples", "num_critics"):
-            check_positive_int(getattr(self, name), name)
-        check_fraction(self.discount, "discount")
-        check_bool(self.normalize_observations, "normalize_observations")
+            check_int(getattr(self, name), f"{n}.{name}")
+        check_fraction(self.discount, f"{n}.discount")
+        check_bool(self.normalize_observations, f"{n}.normalize_observations")
         check_actor(self.actor, self.normalize_observations)
-        check_fraction(self.tau, "tau", closed=True)
-        if self.target_entropy is not None and not (
-                isinstance(self.target_entropy, int | float) and math.isfinite(
-                    self.target_entropy)):
-            raise ValueError(f"target_entropy must be a finite number or None, got "
-                             f"{self.target_entropy!r}")
-        if not isinstance(self.backup_entropy, bool):
-            raise ValueError(f"backup_entropy must be a bool, got {self.backup_entropy!r}")
+        check_fraction(self.tau, f"{n}.tau", closed=True)
+        check_finite(self.target_entropy, f"{n}.target_entropy", allow_none=True)
+        check_bool(self.backup_entropy, f"{n}.backup_entropy")
 
 
 class CQLState(NamedTuple):
@@ -159,6 +152,15 @@ def conservative_penalty(q_sampled: jax.Array, log_density: jax.Array, q_data: j
     return temperature * jnp.mean(jax.nn.logsumexp(z, axis=0), axis=0) - jnp.mean(q_data, axis=0)
 
 
+def _check_inputs(config: Any, reward_data: Any) -> None:
+    """Refuse a config that is not a :class:`CQLConfig` and any reward data."""
+    if not isinstance(config, CQLConfig):
+        raise ValueError(f"config must be a CQLConfig, got {type(config).__name__}")
+    if reward_data is not None:
+        raise ValueError("CQL takes no reward_data: it learns from the rewards of the dynamics "
+                         "data (label them first, e.g. offline.data.dataset.relabel_rewards)")
+
+
 def make_train(dynamics: odata.Dataset, config: CQLConfig = CQLConfig(), *,
                reward_data: RewardData | None = None) -> Trainer:
     """The learner API (:mod:`offline.learners.base`) for CQL(H) on ``dynamics`` (with its rewards).
@@ -167,11 +169,7 @@ def make_train(dynamics: odata.Dataset, config: CQLConfig = CQLConfig(), *,
     ``cql_penalty`` (mean over critics, before the weight), ``actor_loss``, ``alpha`` (entropy
     temperature), ``entropy`` (``−mean log π``), ``mean_q``.
     """
-    if not isinstance(config, CQLConfig):
-        raise ValueError(f"config must be a CQLConfig, got {type(config).__name__}")
-    if reward_data is not None:
-        raise ValueError("CQL takes no reward_data: it learns from the rewards of the dynamics "
-                         "data (label them first, e.g. offline.data.dataset.relabel_rewards)")
+    _check_inputs(config, reward_data)
     data, scale, norm = normalized_dataset(dynamics, "dynamics", config.normalize_observations)
     c = config
     action_size = dynamics.action_size

@@ -3,20 +3,20 @@
 
 **Model.** ``f(s, s') = action_limit · tanh(MLP([s, s' − s]))`` — an MLP (3×256 ReLU by
 default, :class:`agents.ppo.networks.MLP`) on the state and the state change, bounded by ``tanh`` to
-the action box. Feeding ``s' − s`` rather than ``s'`` is our choice (the thesis and the original implementation
-give no architecture): for control-affine dynamics such as ``s' = s + B a`` the target is then a
-function of the input's second half alone. It is trained by least squares on the dynamics data's
-actions divided by the action limit (so targets lie in ``[−1, 1]``), in one ``lax.scan`` of
-Adam steps (:func:`make_inverse_dynamics`); training is jittable and vmappable over seeds.
-With ``normalize_observations`` both ``s`` and ``s'`` are standardised with the training (dynamics)
-data's statistics (:class:`offline.learners.base.ObservationNormalizer`) before the network — the
-trained :class:`InverseModel` carries that normalizer and takes raw states, so labelling reward
-data standardises its states with the dynamics statistics.
+the action box. Feeding ``s' − s`` rather than ``s'`` is our choice (the thesis and the original
+implementation give no architecture): for control-affine dynamics such as ``s' = s + B a`` the
+target is then a function of the input's second half alone. It is trained by least squares on the
+dynamics data's actions divided by the action limit (so targets lie in ``[−1, 1]``), in one
+``lax.scan`` of Adam steps (:func:`make_inverse_dynamics`); training is jittable and vmappable over
+seeds. With ``normalize_observations`` both ``s`` and ``s'`` are standardised with the training
+(dynamics) data's statistics (:class:`offline.learners.base.ObservationNormalizer`) before the
+network — the trained :class:`InverseModel` carries that normalizer and takes raw states, so
+labelling reward data standardises its states with the dynamics statistics.
 
 **Labelling.** :func:`label_actions` gives reward data (:class:`offline.data.scenarios.RewardData`,
 no actions) the model's predicted actions and returns an :class:`offline.data.dataset.Dataset` — the
-input of BCO (:mod:`offline.learners.bc`) and of AP (labelled expert data appended to the dynamics data
-with :func:`offline.data.dataset.concatenate`, then ATAC)::
+input of BCO (:mod:`offline.learners.bc`) and of AP (labelled expert data appended to the dynamics
+data with :func:`offline.data.dataset.concatenate`, then ATAC)::
 
     inv = make_inverse_dynamics(dynamics, InverseDynamicsConfig())
     state, _ = jax.jit(inv.train)(key)
@@ -36,15 +36,13 @@ import jax.numpy as jnp
 import optax
 
 from agents.ppo.networks import MLP
+from mjxrmp.config import check_bool, check_float, check_int
 from offline.data import dataset as odata
 from offline.data.scenarios import RewardData
 from offline.learners.base import (
     ObservationNormalizer,
     adam_step,
-    check_bool,
     check_network,
-    check_positive_float,
-    check_positive_int,
     normalized_dataset,
     scan_steps,
 )
@@ -67,12 +65,13 @@ class InverseDynamicsConfig:
     normalize_observations: bool = False
 
     def __post_init__(self) -> None:
+        n = type(self).__name__
         object.__setattr__(self, "hidden_sizes", check_network(self.hidden_sizes,
-                                                               self.activation))
-        check_positive_float(self.learning_rate, "learning_rate")
-        check_positive_int(self.batch_size, "batch_size")
-        check_positive_int(self.num_steps, "num_steps")
-        check_bool(self.normalize_observations, "normalize_observations")
+                                                               self.activation, f"{n}."))
+        check_float(self.learning_rate, f"{n}.learning_rate")
+        check_int(self.batch_size, f"{n}.batch_size")
+        check_int(self.num_steps, f"{n}.num_steps")
+        check_bool(self.normalize_observations, f"{n}.normalize_observations")
 
 
 class InverseDynamicsNet(nn.Module):
@@ -141,8 +140,8 @@ def make_inverse_dynamics(dynamics: odata.Dataset,
                           ) -> InverseDynamicsTrainer:
     """Least-squares regression of the normalised dataset actions on ``(s, s')`` (standardised
     when ``config.normalize_observations``): loss ``mean ‖f(s, s') − a/action_limit‖²`` over
-    minibatches drawn with :func:`offline.data.dataset.sample`; metric ``loss`` per step. ``dynamics``
-    is closed over as device arrays."""
+    minibatches drawn with :func:`offline.data.dataset.sample`; metric ``loss`` per step.
+    ``dynamics`` is closed over as device arrays."""
     if not isinstance(config, InverseDynamicsConfig):
         raise ValueError(f"config must be an InverseDynamicsConfig, got "
                          f"{type(config).__name__}")

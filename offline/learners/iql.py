@@ -35,16 +35,13 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from mjxrmp.config import check_bool, check_float, check_fraction, check_int
 from offline.data import dataset as odata
 from offline.data.scenarios import RewardData
 from offline.learners.base import (
     Trainer,
     adam_step,
-    check_bool,
-    check_fraction,
     check_network,
-    check_positive_float,
-    check_positive_int,
     normalized_dataset,
     policy_act,
     scan_steps,
@@ -57,8 +54,8 @@ from offline.learners.residual_actor import apply_actor, check_actor, dataset_ba
 class IQLConfig:
     """IQL hyper-parameters (module docstring for their sources); ``normalize_observations``
     standardises every network's states with the dataset's statistics
-    (:class:`offline.learners.base.ObservationNormalizer`; default off); ``actor`` is the actor class
-    (:data:`offline.learners.residual_actor.ACTORS`; default ``"mlp"``)."""
+    (:class:`offline.learners.base.ObservationNormalizer`; default off); ``actor`` is the actor
+    class (:data:`offline.learners.residual_actor.ACTORS`; default ``"mlp"``)."""
 
     hidden_sizes: tuple[int, ...] = (256, 256, 256)
     activation: str = "relu"
@@ -77,17 +74,18 @@ class IQLConfig:
     actor: str = "mlp"
 
     def __post_init__(self) -> None:
+        n = type(self).__name__
         object.__setattr__(self, "hidden_sizes", check_network(self.hidden_sizes,
-                                                               self.activation))
+                                                               self.activation, f"{n}."))
         for name in ("actor_lr", "critic_lr", "value_lr", "temperature", "max_weight"):
-            check_positive_float(getattr(self, name), name)
+            check_float(getattr(self, name), f"{n}.{name}")
         for name in ("batch_size", "num_steps", "num_critics"):
-            check_positive_int(getattr(self, name), name)
-        check_fraction(self.discount, "discount")
-        check_bool(self.normalize_observations, "normalize_observations")
+            check_int(getattr(self, name), f"{n}.{name}")
+        check_fraction(self.discount, f"{n}.discount")
+        check_bool(self.normalize_observations, f"{n}.normalize_observations")
         check_actor(self.actor, self.normalize_observations)
-        check_fraction(self.expectile, "expectile")
-        check_fraction(self.tau, "tau", closed=True)
+        check_fraction(self.expectile, f"{n}.expectile")
+        check_fraction(self.tau, f"{n}.tau", closed=True)
 
 
 class IQLState(NamedTuple):

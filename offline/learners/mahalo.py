@@ -36,10 +36,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxrmp.config import check_bool, check_float, check_int, check_parts
 from offline.data import dataset as odata
 from offline.data import scenarios
 from offline.learners import atac
-from offline.learners.base import ObservationNormalizer, Trainer, observation_normalizer
+from offline.learners.base import (
+    ObservationNormalizer,
+    Trainer,
+    check_network,
+    observation_normalizer,
+)
 from offline.learners.networks import StateNet
 
 #: Default weight of the reward-data loss relative to β (docs/design.md §4.5: α = 1e5·β).
@@ -59,15 +65,12 @@ class RewardNetConfig:
     reward_range: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "hidden_sizes", tuple(self.hidden_sizes))
-        if not self.hidden_sizes or any(not isinstance(h, int) or h < 1
-                                        for h in self.hidden_sizes):
-            raise ValueError(f"hidden_sizes must be a non-empty sequence of positive integers, "
-                             f"got {self.hidden_sizes!r}")
-        if not (isinstance(self.lr, int | float) and math.isfinite(self.lr) and self.lr > 0):
-            raise ValueError(f"lr must be a finite number > 0, got {self.lr!r}")
-        if not (isinstance(self.batch_size, int) and self.batch_size >= 1):
-            raise ValueError(f"batch_size must be a positive integer, got {self.batch_size!r}")
+        n = type(self).__name__
+        object.__setattr__(self, "hidden_sizes",
+                           check_network(self.hidden_sizes, "relu", f"{n}."))
+        check_float(self.lr, f"{n}.lr")
+        check_int(self.batch_size, f"{n}.batch_size")
+        check_bool(self.max_reward_label, f"{n}.max_reward_label")
         if self.reward_range is not None:
             object.__setattr__(self, "reward_range", _check_range(self.reward_range,
                                                                   "reward_range"))
@@ -84,16 +87,9 @@ class MAHALOConfig:
     reward_weight: float | None = None
 
     def __post_init__(self) -> None:
-        if not isinstance(self.atac, atac.ATACConfig):
-            raise ValueError(f"atac must be an ATACConfig, got {type(self.atac).__name__}")
-        if not isinstance(self.reward, RewardNetConfig):
-            raise ValueError(f"reward must be a RewardNetConfig, got "
-                             f"{type(self.reward).__name__}")
-        if self.reward_weight is not None and not (
-                isinstance(self.reward_weight, int | float) and math.isfinite(self.reward_weight)
-                and self.reward_weight > 0):
-            raise ValueError(f"reward_weight must be a finite number > 0 or None, got "
-                             f"{self.reward_weight!r}")
+        check_parts(self, atac=atac.ATACConfig, reward=RewardNetConfig)
+        if self.reward_weight is not None:
+            check_float(self.reward_weight, "MAHALOConfig.reward_weight")
 
 
 def _check_range(rng, name: str) -> tuple[float, float]:
@@ -139,7 +135,8 @@ def prepare_reward_data(reward_data: scenarios.RewardData, *, remove_terminals: 
     return jax.device_put(rd)
 
 
-def resolve_reward_range(reward_data: scenarios.RewardData, reward_range, max_reward_label: bool
+def resolve_reward_range(reward_data: scenarios.RewardData, reward_range: Any,
+                         max_reward_label: bool
                          ) -> tuple[float, float]:
     """The clip range of ``g``: ``reward_range`` if given, ``[0, 1]`` for max-reward labels,
     else the reward data's ``metadata["reward_range"]`` (the environment's range)."""

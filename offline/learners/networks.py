@@ -1,4 +1,5 @@
-"""Networks and parameter utilities shared by the offline learners (thesis ch. 7, docs/design.md §4.5).
+"""Networks and parameter utilities shared by the offline learners (thesis ch. 7, docs/design.md
+§4.5).
 
 * :class:`QEnsemble` — ``num_critics`` independent Q-networks ``Q_i(s, a)`` (MLPs, 3×256 ReLU by
   default) evaluated in one call through ``nn.vmap``: ``__call__(obs, act) -> (..., num_critics)``.

@@ -26,7 +26,8 @@ core of :mod:`offline.learners.atac`:
   (it reads the rewards that PLfO dynamics data hides: ``rewards_visible: false``).
 
 AP and BC / BCO (inverse dynamics) live in their own module; AP ends in
-:func:`offline.learners.atac.make_train` on an action-labelled :class:`~offline.data.dataset.Dataset`.
+:func:`offline.learners.atac.make_train` on an action-labelled
+:class:`~offline.data.dataset.Dataset`.
 """
 
 from __future__ import annotations
@@ -37,10 +38,14 @@ import jax
 import numpy as np
 import optax
 
+from mjxrmp.config import check_finite, check_int, check_parts
 from offline.data import dataset as odata
 from offline.data import scenarios
 from offline.learners import atac
-from offline.learners.base import Trainer, observation_normalizer
+from offline.learners.base import (
+    Trainer,
+    observation_normalizer,
+)
 from offline.learners.mahalo import RewardNetConfig, make_reward_net
 
 
@@ -53,14 +58,8 @@ class RPConfig:
     reward_steps: int = 100_000
 
     def __post_init__(self) -> None:
-        if not isinstance(self.atac, atac.ATACConfig):
-            raise ValueError(f"atac must be an ATACConfig, got {type(self.atac).__name__}")
-        if not isinstance(self.reward, RewardNetConfig):
-            raise ValueError(f"reward must be a RewardNetConfig, got "
-                             f"{type(self.reward).__name__}")
-        if not (isinstance(self.reward_steps, int) and self.reward_steps >= 1):
-            raise ValueError(f"reward_steps must be a positive integer, got "
-                             f"{self.reward_steps!r}")
+        check_parts(self, atac=atac.ATACConfig, reward=RewardNetConfig)
+        check_int(self.reward_steps, "RPConfig.reward_steps")
 
 
 def make_train_rp(dynamics: odata.Dataset, config: RPConfig, *,
@@ -103,12 +102,8 @@ class UDSConfig:
     min_reward: float | None = None
 
     def __post_init__(self) -> None:
-        if not isinstance(self.atac, atac.ATACConfig):
-            raise ValueError(f"atac must be an ATACConfig, got {type(self.atac).__name__}")
-        if self.min_reward is not None and not (isinstance(self.min_reward, int | float)
-                                                and np.isfinite(self.min_reward)):
-            raise ValueError(f"min_reward must be a finite number or None, got "
-                             f"{self.min_reward!r}")
+        check_parts(self, atac=atac.ATACConfig)
+        check_finite(self.min_reward, "UDSConfig.min_reward", allow_none=True)
 
 
 def _row_keys(episode_ids, observations, next_observations) -> list[bytes]:

@@ -21,8 +21,8 @@ Every offline learner (ATAC, PSPI, MAHALO, RP, AP, UDS, Oracle, BC, BCO, IQL, CQ
   change of variables of :mod:`offline.learners.tanh_gaussian` holds unchanged. The clip ``c`` keeps
   ``|b| ≤ atanh(0.999) ≈ 3.8`` for saturated base actions.
 
-Why: a plain MLP cannot imitate the RMP² expert precisely enough near obstacles (BENCHMARKS,
-"Chapter 7 table"), the failure chapter 6 shows for plain-MLP PPO; the residual structure keeps
+Why: a plain MLP cannot imitate the RMP² expert precisely enough near obstacles (measured in our
+chapter-7 tables), the failure chapter 6 shows for plain-MLP PPO; the residual structure keeps
 the RMP² policy's collision avoidance and lets the data correct the rest.
 
 The base reads the **raw** observation, so ``"nn_residual"`` cannot be combined with
@@ -48,7 +48,7 @@ import jax.numpy as jnp
 
 from agents.ppo.policies import ObservationSpec, hand_designed_mean
 from mjxrmp import policies as rmp_policies
-from offline.data.collect import make_env
+from offline.data.rollouts import make_env
 from offline.learners.tanh_gaussian import TanhGaussian, TanhGaussianPolicy
 
 #: Actor classes of the offline learners (module docstring).

@@ -18,16 +18,18 @@ recorded at collection time.
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from mjxrmp.geometry import Obstacles
 from offline.data import dataset as odata
-from offline.data.collect import make_env
+from offline.data.rollouts import make_env
 
 
-def observation_clearance(env, observations: jax.Array) -> jax.Array:
+def observation_clearance(env: Any, observations: jax.Array) -> jax.Array:
     """The robot–obstacle clearance ``min_{i active, p} d(p, o_i)`` of each observation
     (``(..., O)`` → ``(...)``; thesis §8.4.2 cost, module docstring) of a reaching
     environment ``env`` (:func:`envs.make`), with the environment's exact surface distances

@@ -137,7 +137,7 @@ def length_bias_statistics(dataset: odata.Dataset, *, success: Any = None,
     * ``cut_fraction`` — fraction of episodes ending in a terminal (cut at a collision);
     * ``mean_length_success`` / ``mean_length_failure`` (NaN for an empty group) and
       ``num_success``. Success per episode is ``success`` when given (a boolean array with one
-      entry per episode, e.g. ``offline.data.collect.rollout(...)["episode"]["success"]``;
+      entry per episode, e.g. ``offline.data.rollouts.rollout(...)["episode"]["success"]``;
       ``success_source = "given"``). The collector's metadata holds only aggregate success
       rates, not per-episode flags, so otherwise the episodes whose return is at least the
       ``success_quantile`` quantile of the returns (NumPy's linear interpolation; ties all
@@ -186,7 +186,7 @@ def length_bias_statistics(dataset: odata.Dataset, *, success: Any = None,
 
 def goal_distances(dataset: odata.Dataset, which: str = "next_observations") -> np.ndarray:
     """``‖g − x‖`` per transition from the ``goal_minus_x`` block of the observation layout
-    recorded in the dataset's metadata (:func:`offline.data.collect.environment_metadata`), for
+    recorded in the dataset's metadata (:func:`offline.data.rollouts.environment_metadata`), for
     ``which`` = ``"observations"`` or ``"next_observations"``; float64 ``(N,)``."""
     layout = dataset.metadata.get("observation_layout")
     if not layout or "goal_minus_x" not in layout:

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import envs
+from agents.ppo import PPOConfig, make_train
 from agents.ppo.networks import GaussianPolicy
 from agents.ppo.normalization import RunningStats
 from agents.ppo.policies import (
@@ -19,7 +20,6 @@ from agents.ppo.policies import (
     make_env_and_policy,
     make_policy,
 )
-from agents.ppo.train import PPOConfig, make_train
 from envs.wrappers import RMPInEnv
 from mjxrmp import policies as rmp_policies
 from mjxrmp.geometry import Obstacles

@@ -12,7 +12,6 @@ and a single unbatched observation.
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import json
 import os
 import shutil
@@ -27,8 +26,14 @@ import numpy as np
 import pytest
 
 import envs
-from agents.ppo.policies import make_policy
-from agents.run.export import export_policy, manifest_path
+from agents.ppo import make_policy
+from agents.run.export import (
+    check_names,
+    export_from_params,
+    export_policy,
+    init_params,
+    manifest_path,
+)
 
 REPO = Path(__file__).resolve().parents[2]
 LOADER = REPO / "scripts" / "load_policy.py"
@@ -38,13 +43,6 @@ BATCHES = (1, 7)
 #: In practice the exported actions equal the compiled apply's bit for bit (same batch size);
 #: without export_policy's optimisation barrier constant folding moves rmp_residual by ~1e-5.
 TOL = dict(rtol=1e-6, atol=1e-6)
-
-
-def _load_loader():
-    spec = importlib.util.spec_from_file_location("load_policy_under_test", LOADER)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def _subprocess_env() -> dict:
@@ -180,32 +178,52 @@ def test_loader_cli(exported, tmp_path):
                                np.load(out / "expected_rmp_residual_7.npy"), **TOL)
 
 
+REFUSALS = textwrap.dedent("""
+    import json, sys
+    import numpy as np
+    from load_policy import PolicyLoadError, load_policy
+
+    out = {}
+    for name in ("bad", "swapped", "lonely"):
+        try:
+            load_policy(name + ".jaxexport")
+            out[name] = "loaded"
+        except PolicyLoadError as e:
+            out[name] = str(e)
+    policy = load_policy("good.jaxexport")
+    try:
+        policy(np.zeros((2, policy.obs_size + 1), np.float32))
+        out["shape"] = "ran"
+    except ValueError as e:
+        out["shape"] = str(e)
+    print(json.dumps(out))
+""")
+
+
 def test_corrupted_or_mismatched_blob_refused(exported, tmp_path):
+    """The loader, copied next to the files as a user would (a subprocess), refuses a corrupted
+    blob, a blob next to another export's manifest, a blob without manifest and observations of
+    the wrong shape."""
     _, cases = exported
-    lp = _load_loader()
-    src, manifest = cases["nn"]
-    bad = tmp_path / "bad.jaxexport"
+    src, _ = cases["nn"]
+    shutil.copy(LOADER, tmp_path / "load_policy.py")
+    shutil.copy(src, tmp_path / "good.jaxexport")
+    shutil.copy(manifest_path(src), tmp_path / "good.json")
     blob = bytearray(src.read_bytes())
     blob[len(blob) // 2] ^= 0xFF
-    bad.write_bytes(bytes(blob))
-    shutil.copy(manifest_path(src), manifest_path(bad))
-    with pytest.raises(lp.PolicyLoadError, match="corrupted"):
-        lp.load_policy(bad)
-    # a valid blob next to another export's manifest
-    swapped = tmp_path / "swapped.jaxexport"
-    shutil.copy(cases["rmp_residual"][0], swapped)
-    shutil.copy(manifest_path(src), manifest_path(swapped))
-    with pytest.raises(lp.PolicyLoadError, match="sha256"):
-        lp.load_policy(swapped)
-    # missing manifest
-    lonely = tmp_path / "lonely.jaxexport"
-    shutil.copy(src, lonely)
-    with pytest.raises(lp.PolicyLoadError, match="manifest"):
-        lp.load_policy(lonely)
-    # wrong observation shape at call time
-    policy = lp.load_policy(src)
-    with pytest.raises(ValueError, match="obs must have shape"):
-        policy(np.zeros((2, manifest["obs_size"] + 1), np.float32))
+    (tmp_path / "bad.jaxexport").write_bytes(bytes(blob))
+    shutil.copy(manifest_path(src), tmp_path / "bad.json")
+    shutil.copy(cases["rmp_residual"][0], tmp_path / "swapped.jaxexport")
+    shutil.copy(manifest_path(src), tmp_path / "swapped.json")
+    shutil.copy(src, tmp_path / "lonely.jaxexport")
+    proc = subprocess.run([sys.executable, "-c", REFUSALS], cwd=tmp_path,
+                          env=_subprocess_env(), capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert "corrupted" in out["bad"]
+    assert "sha256" in out["swapped"]
+    assert "manifest" in out["lonely"]
+    assert "obs must have shape" in out["shape"]
 
 
 def test_export_policy_validates_arguments(tmp_path):
@@ -230,23 +248,29 @@ def test_export_policy_validates_arguments(tmp_path):
     assert manifest["matmul_precision"] == "highest"
 
 
-def test_export_script(tmp_path):
-    """``scripts/export.py``: metadata of :func:`export_from_params`, CLI, clear name errors."""
-    from scripts import export as export_script
-
-    params = export_script.init_params(ENV, "nn", seed=0)
-    manifest = export_script.export_from_params(ENV, "nn", params, tmp_path / "a.jaxexport",
-                                                {"iteration": 7}, platforms=("cpu",))
+def test_export_from_params_and_cli(tmp_path):
+    """:func:`export_from_params` metadata, clear name errors, and ``scripts/export.py`` end to
+    end (a subprocess)."""
+    params = init_params(ENV, "nn", seed=0)
+    manifest = export_from_params(ENV, "nn", params, tmp_path / "a.jaxexport",
+                                  {"iteration": 7}, platforms=("cpu",))
     meta = manifest["metadata"]
     assert (meta["env"], meta["policy"], meta["robot"], meta["iteration"]) == (
         ENV, "nn", "three_link", 7)
     assert meta["observation_layout"]["obstacles"] == [17, 26]
-    assert export_script.main(["--env", ENV, "--policy", "nn", "--out",
-                               str(tmp_path / "b.jaxexport"), "--platforms", "cpu"]) == 0
-    assert json.loads((tmp_path / "b.json").read_text())["metadata"]["seed"] == 0
     with pytest.raises(ValueError, match=r"valid names are \['franka'"):
-        export_script.export_from_params("three_link/env9", "nn", params, tmp_path / "c.jaxexport")
+        export_from_params("three_link/env9", "nn", params, tmp_path / "c.jaxexport")
     with pytest.raises(ValueError, match=r"point2d.*has no policy classes"):
-        export_script.check_names("point2d", "nn")
+        check_names("point2d", "nn")
     with pytest.raises(ValueError, match="valid kinds"):
-        export_script.check_names(ENV, "mlp")
+        check_names(ENV, "mlp")
+    script = str(REPO / "scripts" / "export.py")
+    proc = subprocess.run([sys.executable, script, "--env", ENV, "--policy", "nn", "--out",
+                           str(tmp_path / "b.jaxexport"), "--platforms", "cpu"],
+                          env=_subprocess_env(), capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    assert "obs (26,) -> action (3,)" in proc.stdout
+    assert json.loads((tmp_path / "b.json").read_text())["metadata"]["seed"] == 0
+    proc = subprocess.run([sys.executable, script, "--out", str(tmp_path / "d.jaxexport")],
+                          env=_subprocess_env(), capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2 and "--checkpoint RUN_DIR" in proc.stderr

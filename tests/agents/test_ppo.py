@@ -1,4 +1,4 @@
-"""PPO (agents/ppo/train.py): GAE and loss against float64 NumPy references, seed-vmapping, learning.
+"""PPO (agents/ppo/): GAE and loss against float64 NumPy references, seed-vmapping, learning.
 
 Small configurations, the pure-JAX ``point2d`` environment and a 1-D toy environment only (no
 MJX), so the whole module compiles and runs in well under a minute on 2 CPU cores.
@@ -15,8 +15,7 @@ import pytest
 from brax.envs.base import Env, State
 
 import envs
-from agents.ppo.networks import GaussianPolicy, ValueMLP
-from agents.ppo.train import PPOConfig, gae, make_train, ppo_loss
+from agents.ppo import GaussianPolicy, PPOConfig, ValueMLP, gae, make_train, ppo_loss
 
 
 class MoveToZero(Env):

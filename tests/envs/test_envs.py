@@ -1,4 +1,5 @@
-"""Planar 3-link reaching environments, samplers, wrappers, registry and the point robot.
+"""Planar 3-link reaching environments, samplers, wrappers, registry, the point robot, the
+shared reward and bookkeeping, and GIF rendering.
 
 Compiled functions are built once per module (module-level ``jax.jit`` or module fixtures) and
 batches are tiny, so the file runs in well under a minute on 2 CPU cores.
@@ -17,8 +18,8 @@ from brax.envs.wrappers import training as brax_training
 from mujoco import mjx
 
 import envs
-from envs import evaluate, samplers
-from envs.reaching import ThreeLinkReach
+from envs import base, evaluate, render, samplers
+from envs.three_link import ThreeLinkReach
 from envs.wrappers import RMPInEnv, wrap
 from mjxrmp import policies
 from mjxrmp.geometry import Obstacles
@@ -77,12 +78,14 @@ def test_observation_sizes_and_layout():
 
 
 def test_bad_arguments_raise():
-    with pytest.raises(ValueError, match="setup"):
-        ThreeLinkReach("env4")
-    with pytest.raises(ValueError, match="obstacle_sampler"):
-        ThreeLinkReach("env3", obstacle_sampler="nope")
-    with pytest.raises(ValueError, match="observation"):
-        ThreeLinkReach("env3", observation="nope")
+    with pytest.raises(ValueError, match=r"ThreeLinkReach\.obstacle_sampler"):
+        envs.make("three_link/env3", obstacle_sampler="nope")
+    with pytest.raises(ValueError, match=r"ThreeLinkReach\.observation"):
+        envs.make("three_link/env3", observation="nope")
+    with pytest.raises(ValueError, match=r"ThreeLinkReach\.num_obstacles"):
+        envs.make("three_link/env2", num_obstacles=0)
+    with pytest.raises(ValueError, match=r"PointRobot2D\.action_limit"):
+        envs.make("point2d", action_limit=-1.0)
     with pytest.raises(ValueError, match="unknown environment"):
         envs.make("three_link/env9")
 
@@ -232,7 +235,7 @@ def _in_sector(p: np.ndarray, r_min, r_max, center, width) -> np.ndarray:
     [("env1", "thesis"), ("env2", "thesis"), ("env3", "thesis"), ("env3", "original")],
 )
 def test_three_link_sampler_rules(setup, sampler):
-    env = ThreeLinkReach(setup, obstacle_sampler=sampler)
+    env = envs.make(f"three_link/{setup}", obstacle_sampler=sampler)
     keys = jax.random.split(jax.random.PRNGKey(11), N_SAMPLES)
     q0, qd0, goal, obs, ok = jax.jit(jax.vmap(env.sample_scene))(keys)
     assert float(jnp.mean(ok)) == 1.0
@@ -364,3 +367,43 @@ def test_point_robot():
         x=state.info["obstacles"].center[:, 0], xd=jnp.zeros((4, 2))))
     out = step(inside, jnp.zeros((4, 2)))
     assert np.all(np.asarray(out.done) == 1.0)
+
+
+# ------------------------------------------------------------------------- shared task pieces
+
+
+def test_reach_reward_layout_and_episode_bookkeeping():
+    p = base.RewardParams()
+    d_obs = jnp.array([0.025, 1.0, -0.1])
+    active = jnp.array([True, True, False])
+    r = base.reach_reward(jnp.asarray(0.1), d_obs, active, jnp.array([100.0]), p)
+    want = math.exp(-0.5) - 0.5 - 1e-5 * 100.0**2
+    assert float(r) == pytest.approx(want, abs=1e-6)
+    assert float(base.reach_reward(jnp.asarray(0.0), jnp.array([0.0]), jnp.array([True]),
+                                   jnp.zeros(1), p)) == 0.0
+    assert float(base.reach_reward(jnp.asarray(9.0), -jnp.ones(9), jnp.ones(9, bool),
+                                   jnp.zeros(1), p)) == p.reward_min
+    assert base.layout([("a", 2), ("b", 0), ("c", 3)]) == {
+        "a": slice(0, 2), "b": slice(2, 2), "c": slice(2, 5)}
+    info = base.episode_info(track_nonfinite=False)
+    info = base.accumulate_episode(info, jnp.asarray(0.5), jnp.asarray(1.0), jnp.asarray(1.0))
+    info = base.accumulate_episode(info, jnp.asarray(0.25), jnp.asarray(0.0), jnp.asarray(0.0))
+    assert {k: float(v) for k, v in info.items()} == {
+        "episode_return": 0.75, "episode_length": 2.0, "episode_collided": 1.0}
+    np.testing.assert_array_equal(
+        base.clean_action(jnp.array([jnp.nan, 3.0, -0.5]), 1.0), [0.0, 1.0, -0.5])
+
+
+# ------------------------------------------------------------------------- render
+
+
+def test_render_gif_of_a_three_link_trajectory(tmp_path):
+    q = np.linspace(0.0, 1.0, 7)[:, None] * np.array([[1.0, -0.5, 0.25]])
+    data = {"q": q, "done": np.zeros(7), "goal_distance": np.linspace(0.5, 0.1, 7),
+            "goal": np.array([-0.3, 0.2]), "centers": np.array([[0.5, 0.5]]),
+            "radii": np.array([0.1]), "return": 0.0}
+    path = tmp_path / "three_link.gif"
+    assert render.save_gif(data, "three_link", str(path), every=2, fps=5) == 4
+    assert path.stat().st_size > 0
+    with pytest.raises(ValueError, match="3-link and Franka"):
+        render.animate(data, "point2d")

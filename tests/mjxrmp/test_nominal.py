@@ -1,4 +1,5 @@
-"""Nominal-trajectory potential (thesis eqs 4.9–4.12) and the DTW nominal demonstration (§5.2.1).
+"""Nominal-trajectory potential (thesis eqs 4.9–4.11), its fit (eq 4.12, exact NNLS/LSEI) and
+the DTW nominal demonstration (§5.2.1).
 
 The bias fit is checked against independent SciPy solvers on a design matrix rebuilt here in
 NumPy from the closed-form gradient of eq 4.9; every fit uses the same trajectory length so the
@@ -19,6 +20,7 @@ from scipy.optimize import minimize
 from scipy.optimize import nnls as scipy_nnls
 
 import mjxrmp  # noqa: F401  (XLA flags first)
+from mjxrmp.learned import lsq, nominal_fit
 from mjxrmp.learned import nominal as nm
 
 
@@ -47,8 +49,8 @@ def arc():
 
 @functools.cache
 def fitter(goal_constraint):
-    return jax.jit(functools.partial(nm.fit_nominal_potential, sigma=SIGMA, eta=ETA, lam=LAM,
-                                     goal_constraint=goal_constraint))
+    return jax.jit(functools.partial(nominal_fit.fit_nominal_potential, sigma=SIGMA, eta=ETA,
+                                     lam=LAM, goal_constraint=goal_constraint))
 
 
 @functools.cache
@@ -100,7 +102,7 @@ def assert_monotone(phi):
 
 def test_nnls_matches_scipy():
     rng = np.random.default_rng(0)
-    solve = jax.jit(nm.nnls)
+    solve = jax.jit(lsq.nnls)
     for _ in range(5):
         A = rng.standard_normal((15, 10))
         b = rng.standard_normal(15)
@@ -275,14 +277,14 @@ def test_select_nominal_by_mean_dtw():
     shifts = np.array([-1.0, 6.0, -2.0, 0.5, 1.0])
     delta = 0.01
     demos = [base + np.array([0.0, c * delta]) for c in shifts]
-    index, mean = nm.select_nominal(demos)
+    index, mean = nominal_fit.select_nominal(demos)
     assert index == 3
     expect = n * delta * np.abs(shifts[:, None] - shifts[None]).sum(1) / (len(shifts) - 1)
     np.testing.assert_allclose(mean, expect, rtol=1e-12)
-    j_index, j_mean = jax.jit(nm.select_nominal_jax)(jnp.asarray(np.stack(demos)))
+    j_index, j_mean = jax.jit(nominal_fit.select_nominal_jax)(jnp.asarray(np.stack(demos)))
     assert int(j_index) == 3
     np.testing.assert_allclose(np.asarray(j_mean), expect, rtol=1e-10)
     # unequal lengths (NumPy version): a longer, resampled outlier changes nothing
     demos[1] = np.stack([np.linspace(0, 1, 31), np.full(31, 6.0 * delta)], axis=1)
-    assert nm.select_nominal(demos)[0] == 3
-    assert nm.select_nominal(demos[:1])[0] == 0
+    assert nominal_fit.select_nominal(demos)[0] == 3
+    assert nominal_fit.select_nominal(demos[:1])[0] == 0

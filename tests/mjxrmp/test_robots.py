@@ -264,15 +264,18 @@ def test_get() -> None:
 # --------------------------------------------------------------------------- MJCF / MJX
 
 
-def test_mjcf_module_does_not_import_mujoco() -> None:
-    tree = ast.parse(Path(mjcf.__file__).read_text())
-    imported = [
-        alias.name
-        for node in ast.walk(tree)
-        if isinstance(node, ast.Import)
-        for alias in node.names
-    ] + [node.module or "" for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)]
-    assert not any(name.split(".")[0] == "mujoco" for name in imported)
+def test_mjcf_package_does_not_import_mujoco() -> None:
+    files = sorted(Path(mjcf.__file__).parent.glob("*.py"))
+    assert len(files) >= 4
+    for path in files:
+        tree = ast.parse(path.read_text())
+        imported = [
+            alias.name
+            for node in ast.walk(tree)
+            if isinstance(node, ast.Import)
+            for alias in node.names
+        ] + [node.module or "" for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)]
+        assert not any(name.split(".")[0] == "mujoco" for name in imported), path.name
 
 
 def test_franka_mjx_kinematics_equals_jax(franka_qs: np.ndarray) -> None:

@@ -20,7 +20,7 @@ import pytest
 from offline_bandit import LIMIT, make_bandit, mean_reward
 
 from offline.data import dataset as odata
-from offline.learners import atac
+from offline.learners import atac, atac_losses
 from offline.learners.base import actor_params
 from offline.learners.tanh_gaussian import TanhGaussianPolicy
 
@@ -57,19 +57,20 @@ def test_dqra_pessimism_combine_match_numpy(hand_batch):
     h = hand_batch
     with jax.enable_x64(True):
         for w in (0.0, 0.5, 0.8):
-            got = atac.dqra_loss(jnp.asarray(h["q"]), jnp.asarray(h["qn"]), jnp.asarray(h["qt"]),
-                                 jnp.asarray(h["r"]), jnp.asarray(h["d"]), 0.9, w)
+            got = atac_losses.dqra_loss(jnp.asarray(h["q"]), jnp.asarray(h["qn"]),
+                                        jnp.asarray(h["qt"]), jnp.asarray(h["r"]),
+                                        jnp.asarray(h["d"]), 0.9, w)
             np.testing.assert_allclose(got, np_dqra(h["q"], h["qn"], h["qt"], h["r"], h["d"],
                                                     0.9, w), rtol=1e-12)
-        rel = atac.pessimism_loss(jnp.asarray(h["qpi"]), jnp.asarray(h["q"]), True)
+        rel = atac_losses.pessimism_loss(jnp.asarray(h["qpi"]), jnp.asarray(h["q"]), True)
         np.testing.assert_allclose(rel, np.mean(h["qpi"] - h["q"], 0), rtol=1e-12)
-        ab = atac.pessimism_loss(jnp.asarray(h["qpi"]), jnp.asarray(h["q"]), False)
+        ab = atac_losses.pessimism_loss(jnp.asarray(h["qpi"]), jnp.asarray(h["q"]), False)
         np.testing.assert_allclose(ab, np.mean(h["qpi"], 0), rtol=1e-12)
         for w in (0.0, 0.3, 1.0, 16.0):
             ref = 2.0 / w + 5.0 if w > 1 else 2.0 + w * 5.0
-            assert float(atac.combine(2.0, 5.0, w)) == pytest.approx(ref, rel=1e-12)
+            assert float(atac_losses.combine(2.0, 5.0, w)) == pytest.approx(ref, rel=1e-12)
         # β = 0: the unused branch must not poison the gradient.
-        g = jax.grad(lambda b: atac.combine(2.0 * b, 5.0, b))(0.0)
+        g = jax.grad(lambda b: atac_losses.combine(2.0 * b, 5.0, b))(0.0)
         assert np.isfinite(float(g))
 
 
@@ -79,7 +80,7 @@ def test_dqra_gradients_residual_and_target(hand_batch):
     g, w = 0.9, 0.5
     with jax.enable_x64(True):
         args = [jnp.asarray(h[k]) for k in ("q", "qn", "qt")]
-        gq, gqn, gqt = jax.grad(lambda q, qn, qt: jnp.sum(atac.dqra_loss(
+        gq, gqn, gqt = jax.grad(lambda q, qn, qt: jnp.sum(atac_losses.dqra_loss(
             q, qn, qt, jnp.asarray(h["r"]), jnp.asarray(h["d"]), g, w)), argnums=(0, 1, 2))(*args)
     b = h["q"].shape[0]
     cont = g * (1 - h["d"])
@@ -91,8 +92,8 @@ def test_dqra_gradients_residual_and_target(hand_batch):
 
 
 def test_value_bounds():
-    assert atac.value_bounds(0.0, 1.0, 0.99) == pytest.approx((-100.0, 200.0))
-    assert atac.value_bounds(-2.0, 0.1, 0.9) == pytest.approx((-40.0, 10.0))
+    assert atac_losses.value_bounds(0.0, 1.0, 0.99) == pytest.approx((-100.0, 200.0))
+    assert atac_losses.value_bounds(-2.0, 0.1, 0.9) == pytest.approx((-40.0, 10.0))
 
 
 # --------------------------------------------------------------------------------------------

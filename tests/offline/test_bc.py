@@ -1,5 +1,6 @@
-"""BC, BCO and the inverse-dynamics model (offline/learners/bc.py, offline/learners/inverse_dynamics.py) on tiny
-synthetic datasets whose answers are known in closed form."""
+"""BC, BCO and the inverse-dynamics model (offline/learners/bc.py,
+offline/learners/inverse_dynamics.py) on tiny synthetic datasets whose answers are known in closed
+form."""
 
 import jax
 import jax.numpy as jnp

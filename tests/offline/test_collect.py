@@ -1,5 +1,5 @@
-"""Offline data collection (offline/data/collect.py), PLfO scenarios (offline/data/scenarios.py) and the
-collection CLI (scripts/collect.py).
+"""Offline data collection (offline/data/collect.py), PLfO scenarios (offline/data/scenarios.py) and
+the collection CLI (scripts/collect.py).
 
 Every scripted collection here runs on 3-link env1 with the environment's 600-step horizon in
 chunks of BATCH = 8 episodes, so expert, noisy and random data share one compiled program
@@ -9,10 +9,10 @@ from a tiny two-checkpoint run (trained once per module) and shares a second pro
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
 import json
 import os
+import subprocess
 import sys
 import warnings
 
@@ -22,11 +22,13 @@ import numpy as np
 import pytest
 
 import mjxrmp  # noqa: F401  (XLA flags first)
+from agents.ppo import PPOConfig
 from agents.ppo.policies import decode_observation
-from agents.ppo.train import PPOConfig
 from agents.run import checkpoint
-from agents.run.training import RunSpec, build, seed_keys
+from agents.run.program import build, seed_keys
+from agents.run.spec import RunSpec
 from mjxrmp import policies as rmp_policies
+from offline.data import behaviours, rollouts
 from offline.data import collect as oc
 from offline.data import dataset as odata
 from offline.data import scenarios as sc
@@ -48,17 +50,17 @@ def _collect(behaviour, seed=0, n=BATCH):
 
 
 def _rollout(behaviour, seed=0, n=BATCH):
-    return oc.rollout(ENV, behaviour, n, jax.random.PRNGKey(seed), batch_size=BATCH)
+    return rollouts.rollout(ENV, behaviour, n, jax.random.PRNGKey(seed), batch_size=BATCH)
 
 
 @pytest.fixture(scope="module")
 def env():
-    return oc.make_env(ENV)
+    return rollouts.make_env(ENV)
 
 
 @pytest.fixture(scope="module")
 def random_traj():
-    return _rollout(oc.uniform_random(), COLLIDING_SEED)
+    return _rollout(behaviours.uniform_random(), COLLIDING_SEED)
 
 
 @pytest.fixture(scope="module")
@@ -79,8 +81,8 @@ def ppo_run(tmp_path_factory):
     1 and 2 with the same meta) holding *untrained* policies: freshly initialised policy
     parameters, doubled at step 2, every other leaf of the state zero. Compiling PPO (or even
     its ``init``, which samples scenes) costs 5–25 s on a shared CPU; collection only reads
-    the policy parameters of a checkpoint :func:`agents.run.loading.load_run` accepts. (tests/test_eval
-    covers real runs.)"""
+    the policy parameters of a checkpoint :func:`agents.run.loading.load_run` accepts.
+    (tests/test_eval covers real runs.)"""
     out = str(tmp_path_factory.mktemp("ppo_run"))
     with open(os.path.join(out, "run.json"), "w") as f:
         json.dump(SPEC.to_json(), f)
@@ -88,7 +90,7 @@ def ppo_run(tmp_path_factory):
     keys = seed_keys(SPEC.seeds)
     template = jax.eval_shape(program.init, keys)
     state = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), template)
-    obs = jnp.zeros((oc.make_env(ENV).observation_size,), jnp.float32)
+    obs = jnp.zeros((rollouts.make_env(ENV).observation_size,), jnp.float32)
     policy = program.trainer.policy.init(jax.random.PRNGKey(0), obs)
     for step in (1, 2):
         params = jax.tree.map(lambda x, s=step: (x * s)[None], policy)  # leading seed axis
@@ -104,13 +106,13 @@ def _arrays_equal(a: odata.Dataset, b: odata.Dataset) -> bool:
 
 
 def test_deterministic_from_seed():
-    a = _collect(oc.uniform_random(), COLLIDING_SEED)
-    b = _collect(oc.uniform_random(), COLLIDING_SEED)
+    a = _collect(behaviours.uniform_random(), COLLIDING_SEED)
+    b = _collect(behaviours.uniform_random(), COLLIDING_SEED)
     assert _arrays_equal(a, b) and a.metadata == b.metadata
-    c = _collect(oc.uniform_random(), COLLIDING_SEED + 1)
+    c = _collect(behaviours.uniform_random(), COLLIDING_SEED + 1)
     assert not np.array_equal(np.asarray(a.observations[:5]), np.asarray(c.observations[:5]))
     # Episode i depends only on (key, i): fewer episodes give a prefix, whatever the chunking.
-    d = oc.collect(ENV, oc.uniform_random(), 3, seed=COLLIDING_SEED, batch_size=BATCH)
+    d = oc.collect(ENV, behaviours.uniform_random(), 3, seed=COLLIDING_SEED, batch_size=BATCH)
     n = d.size
     assert np.array_equal(np.asarray(d.actions), np.asarray(a.actions[:n]))
     assert a.metadata["behaviour"] == {"name": "random", "kind": "random"}
@@ -119,7 +121,7 @@ def test_deterministic_from_seed():
 
 def test_terminals_exactly_at_collisions(random_traj):
     traj, ep = random_traj, random_traj["episode"]
-    ds = oc.to_dataset(traj)
+    ds = rollouts.to_dataset(traj)
     per, summary = odata.episode_statistics(ds)
     ended = (ep["collided"] > 0) | (ep["nonfinite"] > 0)
     assert 0 < ended.sum() < BATCH, "the seed must give both collisions and timeouts"
@@ -139,7 +141,7 @@ def test_terminals_exactly_at_collisions(random_traj):
 
 
 def test_terminal_next_observation_is_the_true_last_one(env, random_traj):
-    ds = oc.to_dataset(random_traj)
+    ds = rollouts.to_dataset(random_traj)
     ep = random_traj["episode"]
     obs, nxt = np.asarray(ds.observations), np.asarray(ds.next_observations)
     ends = np.nonzero(np.asarray(ds.terminals) | np.asarray(ds.timeouts))[0]
@@ -160,10 +162,10 @@ def test_terminal_next_observation_is_the_true_last_one(env, random_traj):
 
 def test_noisy_expert_actions_are_expert_plus_clipped_noise(env):
     lim = env.action_limit
-    exp = _rollout(oc.expert())
+    exp = _rollout(behaviours.expert())
     # sigma 0.5 (a recipe level) and 3.0 (mostly clipped) run in the same compiled program.
     for sigma in (0.5, 3.0):
-        noisy = _rollout(oc.noisy_expert(sigma))
+        noisy = _rollout(behaviours.noisy_expert(sigma))
         v = noisy["valid"]
         act, raw, base = (noisy[k][v] for k in ("actions", "raw_actions", "base_actions"))
         # Recorded = what the environment applied: clip(expert + σ·ε), inside the box.
@@ -255,8 +257,8 @@ def test_ppo_behaviours_and_recipes(ppo_run, tmp_path):
                                 "step": 1, "seed_index": 0, "stochastic": False}
     assert med.metadata["fallback"] is None and med.metadata["ppo_run"] == ppo_run
     # Deterministic = the Gaussian mean, clipped; stochastic samples differ; both in the box.
-    det = _rollout(oc.ppo_policy(ppo_run, 1))
-    sto = _rollout(oc.ppo_policy(ppo_run, 1, stochastic=True))
+    det = _rollout(behaviours.ppo_policy(ppo_run, 1))
+    sto = _rollout(behaviours.ppo_policy(ppo_run, 1, stochastic=True))
     v = det["valid"]
     np.testing.assert_array_equal(det["raw_actions"][v], det["base_actions"][v])
     np.testing.assert_array_equal(det["actions"][v], np.clip(det["base_actions"][v], -1, 1))
@@ -266,8 +268,8 @@ def test_ppo_behaviours_and_recipes(ppo_run, tmp_path):
     assert np.abs(sto["actions"]).max() <= 1.0
     assert not np.allclose(sto["actions"][0], det["actions"][0])
     np.testing.assert_array_equal(sto["observations"][0], det["observations"][0])
-    ds = oc.to_dataset(det)
-    assert ds.observation_size == oc.make_env(ENV).observation_size and ds.action_size == 3
+    ds = rollouts.to_dataset(det)
+    assert ds.observation_size == rollouts.make_env(ENV).observation_size and ds.action_size == 3
     with pytest.raises(ValueError, match="not a checkpoint"):
         oc.recipe_sources("medium", 2, ppo_run=ppo_run, ppo_step=7)
 
@@ -342,32 +344,28 @@ def test_plfo_scenarios(recipes, tmp_path):
         sc.make("IL", mixed)
 
 
-def _load_script():
-    spec = importlib.util.spec_from_file_location("collect_script",
-                                                  os.path.join(ROOT, "scripts", "collect.py"))
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_cli(tmp_path, capsys):
-    cli = _load_script()
+def test_cli(tmp_path):
+    """``scripts/collect.py`` as a program: the fallback warning, the report and the dataset file;
+    no silent overwrite. Bad requests are refused by
+    :func:`offline.data.collect.resolve_request`."""
+    script = [sys.executable, os.path.join(ROOT, "scripts", "collect.py")]
     out = tmp_path / "env1_medium.npz"
-    report = cli.main(["--env", ENV, "--recipe", "medium", "--episodes", str(BATCH), "--seed",
-                       "2", "--out", str(out)])
-    captured = capsys.readouterr()
-    assert "WARNING: FALLBACK" in captured.err and "noisy-0.5" in captured.err
-    assert "ALL" in captured.out and '"fallback": "FALLBACK' in captured.out
+    done = subprocess.run([*script, "--env", ENV, "--recipe", "medium", "--episodes",
+                           str(BATCH), "--seed", "2", "--out", str(out)],
+                          capture_output=True, text=True, check=True)
+    assert "WARNING: FALLBACK" in done.stderr and "noisy-0.5" in done.stderr
+    assert "ALL" in done.stdout and '"fallback": "FALLBACK' in done.stdout
+    report = json.loads(done.stdout.strip().splitlines()[-1])
     ds = odata.load(out)
     assert ds.metadata["recipe"] == "medium" and ds.metadata["fallback"] == report["fallback"]
     assert report["episodes"] == BATCH and report["terminals"] + report["timeouts"] == BATCH
-    for bad, what in ((["--env", "nope"], "valid names are"),
-                      (["--recipe", "nope"], "valid recipes are")):
-        with pytest.raises(SystemExit):
-            cli.main([*bad, "--out", str(tmp_path / "x.npz")])
-        err = capsys.readouterr().err
-        assert what in err and ("three_link/env3" in err or "mixed" in err)
-    with pytest.raises(SystemExit):  # no silent overwrite
-        cli.main(["--env", ENV, "--recipe", "expert", "--out", str(out)])
-    assert "exists" in capsys.readouterr().err
+    assert oc.overall_summary(ds)["episodes"] == BATCH
+    for bad, what in ((("nope", "mixed", 1), "valid names are"),
+                      ((ENV, "nope", 1), "valid recipes are"),
+                      ((ENV, "mixed", 0), "--episodes must be >= 1")):
+        with pytest.raises(ValueError, match=what):
+            oc.resolve_request(*bad)
+    assert oc.resolve_request(ENV, "mixed", 1) == ENV
+    again = subprocess.run([*script, "--env", ENV, "--recipe", "expert", "--out", str(out)],
+                           capture_output=True, text=True)
+    assert again.returncode == 2 and "exists" in again.stderr

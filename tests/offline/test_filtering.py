@@ -9,7 +9,7 @@ import pytest
 
 from mjxrmp.geometry import Obstacles
 from offline.data import dataset as odata
-from offline.data.collect import make_env
+from offline.data.rollouts import make_env
 from offline.survival.filtering import filter_collision_margin, observation_clearance
 
 ENV = "three_link/env3"

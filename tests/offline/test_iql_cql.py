@@ -1,6 +1,6 @@
-"""IQL and CQL (offline/learners/iql.py, offline/learners/cql.py): losses against float64 NumPy references, the
-learner-API contracts (split runs, vmap over seeds and β) and a one-step bandit whose best
-action is known."""
+"""IQL and CQL (offline/learners/iql.py, offline/learners/cql.py): losses against float64 NumPy
+references, the learner-API contracts (split runs, vmap over seeds and β) and a one-step bandit
+whose best action is known."""
 
 import jax
 import jax.numpy as jnp
@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from offline_bandit import LIMIT, make_bandit, mean_reward
 
+from offline.data.scenarios import reward_data
 from offline.learners import cql, iql
 from offline.learners.base import actor_params
 from offline.learners.networks import QEnsemble
@@ -166,7 +167,6 @@ def test_configs_and_reward_data_are_refused(bandit):
         cql.CQLConfig(num_samples=0)
     with pytest.raises(ValueError, match="config"):
         iql.make_train(bandit, cql.CQLConfig())
-    from offline.data.scenarios import reward_data
     rd = reward_data(bandit)
     for mod, cfg in ((iql, iql.IQLConfig()), (cql, cql.CQLConfig())):
         with pytest.raises(ValueError, match="no reward_data"):

@@ -1,4 +1,5 @@
-"""offline.data.dataset: Dataset pytree, checksummed files, rollout flattening, episode operations."""
+"""offline.data.dataset: Dataset pytree, checksummed files, rollout flattening, episode
+operations."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""In-graph evaluation of offline policies (offline/experiment/evaluate.py) on the 3-link env3 task."""
+"""In-graph evaluation of offline policies (offline/experiment/evaluate.py) on the 3-link env3
+task."""
 
 import jax
 import jax.numpy as jnp

@@ -1,9 +1,15 @@
-"""offline.experiment.run: which learner reads which data per PLfO scenario, the shortened ATAC
-schedule, chunked training; and the offline scripts' table rule and bad-input handling."""
+"""offline.experiment.run and offline.learners.registry: which learner reads which data per PLfO
+scenario, the shortened ATAC schedule, chunked training; and the offline scripts' table rule and
+bad-input handling (offline.experiment.ch7, ch7_table, single; the scripts as subprocesses)."""
 
 from __future__ import annotations
 
+import argparse
 import json
+import subprocess
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -11,7 +17,34 @@ import pytest
 
 from offline.data import dataset as odata
 from offline.data import scenarios
+from offline.data.scenarios import same_dynamics
+from offline.experiment import ch7, ch7_table, single
 from offline.experiment import run as experiment
+from offline.experiment.settings import Option, control_rate_kwargs
+from offline.learners import plfo_baselines, registry
+from offline.survival import ch8
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def parse(options: Sequence[Option], check: Callable, argv: list[str]) -> argparse.Namespace:
+    """The arguments a script whose parser is built from ``options`` (and ``--out``) and
+    checked by ``check`` parses from ``argv``; a refused argument exits as the script does."""
+    p = argparse.ArgumentParser()
+    for option in options:
+        p.add_argument(*option.flags, **option.spec)
+    if not any(o.flags == ("--out",) for o in options):
+        p.add_argument("--out", type=Path)
+    args = p.parse_args(argv)
+    try:
+        return check(args)
+    except ValueError as e:
+        p.error(str(e))
+
+
+def ch7_args(argv: list[str]) -> argparse.Namespace:
+    """What ``scripts/reproduce_ch7.py`` parses from ``argv``."""
+    return parse(ch7.OPTIONS, ch7.check_args, argv)
 
 META = {"env": "three_link/env3", "action_limit": 1.0, "reward_range": [-1.0, 1.0]}
 
@@ -35,7 +68,7 @@ def data():
 
 def test_applicability_matrix():
     for scenario in scenarios.SCENARIOS:
-        for learner in experiment.TABLE_LEARNERS:
+        for learner in registry.TABLE_LEARNERS:
             expected = not (learner in ("UDS", "ATAC") and scenario in ("ILfO", "RLfO"))
             assert experiment.applicable(learner, scenario) == expected, (learner, scenario)
     assert experiment.applicable("IQL", None) and not experiment.applicable("MAHALO", None)
@@ -47,28 +80,28 @@ def test_applicability_matrix():
 
 def test_shortened_atac_schedule_keeps_the_published_rates_or_the_actor_budget():
     for steps in (10_000, 200_000, 1_000_000):
-        cfg = experiment.atac_config(experiment.Budget(steps=steps))
+        cfg = registry.atac_config(registry.Budget(steps=steps))
         assert cfg.num_steps == steps and cfg.warmstart_steps == steps // 10
         assert cfg.actor_lr == 5e-7 and cfg.critic_lr == 5e-4 and cfg.batch_size == 256
-        scaled = experiment.atac_config(experiment.Budget(steps=steps, actor_rate="scaled"))
+        scaled = registry.atac_config(registry.Budget(steps=steps, actor_rate="scaled"))
         assert scaled.actor_lr * steps == pytest.approx(5e-7 * 1_000_000)
         assert scaled.warmstart_steps == steps // 10 and scaled.critic_lr == 5e-4
-        longer = experiment.atac_config(experiment.Budget(steps=steps, warmstart=0.75))
+        longer = registry.atac_config(registry.Budget(steps=steps, warmstart=0.75))
         assert longer.warmstart_steps == steps * 3 // 4 and longer.actor_lr == 5e-7
-    assert experiment.atac_config(experiment.Budget(steps=15)).warmstart_steps == 1
-    assert experiment.atac_config(experiment.Budget(steps=70)).warmstart_steps == 7
+    assert registry.atac_config(registry.Budget(steps=15)).warmstart_steps == 1
+    assert registry.atac_config(registry.Budget(steps=70)).warmstart_steps == 7
     for bad in (1.0, -0.1, "half"):
-        with pytest.raises(ValueError, match="warmstart must be a fraction"):
-            experiment.Budget(steps=100, warmstart=bad)
+        with pytest.raises(ValueError, match=r"Budget\.warmstart must"):
+            registry.Budget(steps=100, warmstart=bad)
     with pytest.raises(ValueError, match="steps"):
-        experiment.Budget(steps=3)
+        registry.Budget(steps=3)
 
 
 @pytest.mark.parametrize("scenario", ["IL", "RL-expert", "RL-sample"])
 def test_labelled_transitions_are_the_shared_ones_with_reward_data_rewards(data, scenario):
     mixed, expert = data
     dyn, rd = scenarios.make(scenario, mixed, expert, key=jax.random.PRNGKey(3))
-    out = experiment.labelled_transitions(dyn, rd)
+    out = registry.labelled_transitions(dyn, rd)
     assert out.size == rd.size
     np.testing.assert_array_equal(out.observations, rd.observations)
     np.testing.assert_array_equal(out.next_observations, rd.next_observations)
@@ -85,7 +118,7 @@ def test_labelled_transitions_are_the_shared_ones_with_reward_data_rewards(data,
 def test_build_refuses_learners_without_data(data):
     mixed, expert = data
     dyn, rd = scenarios.make("ILfO", mixed, expert)
-    budget = experiment.Budget(steps=20, hidden=(8,), batch=4)
+    budget = registry.Budget(steps=20, hidden=(8,), batch=4)
     for learner in ("UDS", "ATAC"):
         with pytest.raises(ValueError, match="no data to train on"):
             experiment.build(learner, dyn, rd, budget, "ILfO")
@@ -96,7 +129,7 @@ def test_build_refuses_learners_without_data(data):
 def test_chunked_training_equals_one_call_and_reports_every_chunk(data):
     mixed, expert = data
     dyn, rd = scenarios.make("IL", mixed, expert)
-    trainer = experiment.build("BC", dyn, rd, experiment.Budget(steps=20, hidden=(8,), batch=4),
+    trainer = experiment.build("BC", dyn, rd, registry.Budget(steps=20, hidden=(8,), batch=4),
                                "IL")
     keys = experiment.seed_keys([0, 1])
     seen = []
@@ -112,10 +145,8 @@ def test_chunked_training_equals_one_call_and_reports_every_chunk(data):
 def test_beta_grid_in_one_program_equals_runs_at_each_beta(data):
     """Seeds × β vmapped in one program: every run equals ATAC built at that β and trained
     alone with that seed; the β really changes the run."""
-    from offline.learners import plfo_baselines
-
     mixed, _ = data
-    budget = experiment.Budget(steps=10, hidden=(8, 8), batch=8, actor_rate="scaled")
+    budget = registry.Budget(steps=10, hidden=(8, 8), batch=8, actor_rate="scaled")
     run_seeds, run_betas = experiment.seed_beta_runs([0, 1], [0.5, 4.0])
     assert run_seeds == [0, 0, 1, 1] and run_betas == [0.5, 4.0, 0.5, 4.0]
     assert experiment.seed_beta_runs([3], None) == ([3], None)
@@ -124,7 +155,7 @@ def test_beta_grid_in_one_program_equals_runs_at_each_beta(data):
     state, _ = experiment.train_chunked(trainer, keys, 5,
                                         state=experiment.init_runs(trainer, keys, run_betas))
     np.testing.assert_allclose(state.beta, run_betas)
-    alone = plfo_baselines.make_train_oracle(mixed, experiment.atac_config(budget, beta=4.0))
+    alone = plfo_baselines.make_train_oracle(mixed, registry.atac_config(budget, beta=4.0))
     final, _ = jax.jit(alone.train)(jax.random.PRNGKey(1))
     jax.tree.map(lambda a, b: np.testing.assert_allclose(a[3], b, rtol=1e-5, atol=1e-6),
                  state.params["critic"], final.params["critic"])
@@ -136,25 +167,21 @@ def test_beta_grid_in_one_program_equals_runs_at_each_beta(data):
 
 def _ch7_row(args, env: str, scenario: str, learner: str, scores: list) -> dict:
     """A results row of ``reproduce_ch7`` with the cell key ``args`` gives it."""
-    from scripts import reproduce_ch7
-
-    return {"cell": reproduce_ch7._cell_key(env, scenario, learner, args), "env": env,
+    return {"cell": ch7.cell_key(env, scenario, learner, args), "env": env,
             "scenario": scenario, "learner": learner, "normalized_score": scores,
             "safe_pct": [100] * len(scores)}
 
 
 def test_ch7_table_bolds_entries_within_90_percent_of_the_best_non_oracle(tmp_path):
-    from scripts import reproduce_ch7
-
     scores = {"MAHALO": [85, 91], "BC": [50, 52], "BCO": [95, 95], "Oracle": [200, 200]}
-    args = reproduce_ch7.parse_args(["--stage", "table", "--out", str(tmp_path), "--envs", "e"])
-    more_seeds = reproduce_ch7.parse_args(["--out", str(tmp_path), "--envs", "e", "--seeds", "10"])
+    args = ch7_args(["--stage", "table", "--out", str(tmp_path), "--envs", "e"])
+    more_seeds = ch7_args(["--out", str(tmp_path), "--envs", "e", "--seeds", "10"])
     with open(tmp_path / "results.jsonl", "w") as f:
         for learner, s in scores.items():
             f.write(json.dumps(_ch7_row(args, "e", "ILfO", learner, s)) + "\n")
         # A 10-seed run of the same learner is another cell: it does not replace the 5-seed one.
         f.write(json.dumps(_ch7_row(more_seeds, "e", "ILfO", "MAHALO", [0] * 10)) + "\n")
-    summary = reproduce_ch7.table_stage(args)
+    summary = ch7_table.table_stage(args)
     table = (tmp_path / "table.md").read_text()
     assert "**88.0 ± 3.0**" in table and "**95.0 ± 0.0**" in table  # 88 >= 0.9 · 95
     assert "51.0 ± 1.0 |" in table and "**51.0" not in table
@@ -165,59 +192,55 @@ def test_ch7_table_bolds_entries_within_90_percent_of_the_best_non_oracle(tmp_pa
     lines = (tmp_path / "results.jsonl").read_text().splitlines()
     (tmp_path / "results.jsonl").write_text("\n".join(
         line for line in lines if '"BCO"' not in line) + "\n")
-    assert reproduce_ch7.table_stage(args)["mahalo_beats_bc_bco_ilfo"] == {"e": None}
+    assert ch7_table.table_stage(args)["mahalo_beats_bc_bco_ilfo"] == {"e": None}
 
 
 def test_ch7_and_ch8_keep_standardised_observation_runs_apart(tmp_path):
     """``--normalize-observations`` gives cells their own key (old results stay valid), and
     the ch7 table only reads rows of its own setting (refusing when there are none)."""
-    from scripts import reproduce_ch7, reproduce_ch8
-
     base = ["--out", str(tmp_path), "--actor-rate", "scaled"]  # the settings of old results
-    off, on = (reproduce_ch7.parse_args([*base, "--envs", "e", *extra])
+    off, on = (ch7_args([*base, "--envs", "e", *extra])
                for extra in ([], ["--normalize-observations"]))
-    assert reproduce_ch7._cell_key("e", "IL", "BC", off) != reproduce_ch7._cell_key(
+    assert ch7.cell_key("e", "IL", "BC", off) != ch7.cell_key(
         "e", "IL", "BC", on)
-    assert json.loads(reproduce_ch7._cell_key("e", "IL", "BC", on))[:-1] == json.loads(
-        reproduce_ch7._cell_key("e", "IL", "BC", off))
-    off8, on8 = (reproduce_ch8.parse_args(base + extra)
+    assert json.loads(ch7.cell_key("e", "IL", "BC", on))[:-1] == json.loads(
+        ch7.cell_key("e", "IL", "BC", off))
+    off8, on8 = (parse(ch8.OPTIONS, ch8.check_args, base + extra)
                  for extra in ([], ["--normalize-observations"]))
-    assert reproduce_ch8._cell_key("mixed-cut", "ATAC", "zero", off8) != reproduce_ch8._cell_key(
+    assert ch8.cell_key("mixed-cut", "ATAC", "zero", off8) != ch8.cell_key(
         "mixed-cut", "ATAC", "zero", on8)
     with open(tmp_path / "results.jsonl", "w") as f:
         f.write(json.dumps(_ch7_row(off, "e", "ILfO", "BC", [1, 2])) + "\n")
-    assert reproduce_ch7.table_stage(off)["cells"] == 1
+    assert ch7_table.table_stage(off)["cells"] == 1
     with pytest.raises(SystemExit, match="normalize_observations=True"):
-        reproduce_ch7.table_stage(on)
+        ch7_table.table_stage(on)
 
 
 def test_ch7_control_rate_gets_its_own_data_cells_and_table(tmp_path):
     """``--substeps N``: data files, cell keys and the table of another control rate are kept
-    apart from the default ones (shared helper :func:`offline.survival.sweep.control_rate_kwargs`,
-    which also refuses a rate that does not divide the episode)."""
-    from offline.survival.sweep import control_rate_kwargs
-    from scripts import reproduce_ch7
-
+    apart from the default ones (shared helper
+    :func:`offline.experiment.settings.control_rate_kwargs`, which also refuses a rate that does
+    not divide the episode)."""
     base = ["--out", str(tmp_path), "--envs", "three_link/env3",
             "--actor-rate", "scaled"]  # the settings of rows without setting fields
-    plain, rate = (reproduce_ch7.parse_args(base + extra) for extra in ([], ["--substeps", "24"]))
+    plain, rate = (ch7_args(base + extra) for extra in ([], ["--substeps", "24"]))
     assert control_rate_kwargs("three_link/env3", 24) == {"substeps": 24, "horizon": 75}
     assert control_rate_kwargs("three_link/env3", None) is None
     with pytest.raises(ValueError, match="substeps"):
         control_rate_kwargs("three_link/env3", 7)
     with pytest.raises(SystemExit):
-        reproduce_ch7.parse_args([*base, "--substeps", "7"])
-    assert reproduce_ch7.data_path(tmp_path, "three_link/env3", "mixed", 2, 0, 24).name == (
+        ch7_args([*base, "--substeps", "7"])
+    assert ch7.data_path(tmp_path, "three_link/env3", "mixed", 2, 0, 24).name == (
         "three_link-env3_mixed_x2_s0_substeps_24.npz")
-    assert reproduce_ch7.data_path(tmp_path, "three_link/env3", "mixed", 2, 0).name == (
+    assert ch7.data_path(tmp_path, "three_link/env3", "mixed", 2, 0).name == (
         "three_link-env3_mixed_x2_s0.npz")
-    cells = [reproduce_ch7._cell_key("three_link/env3", "ILfO", "BC", a) for a in (plain, rate)]
+    cells = [ch7.cell_key("three_link/env3", "ILfO", "BC", a) for a in (plain, rate)]
     assert cells[0] != cells[1] and json.loads(cells[1])[-2:] == ["substeps", 24]
     with open(tmp_path / "results.jsonl", "w") as f:
         f.write(json.dumps(_ch7_row(plain, "three_link/env3", "ILfO", "BC", [1, 2])) + "\n")
-    assert reproduce_ch7.table_stage(plain)["cells"] == 1
+    assert ch7_table.table_stage(plain)["cells"] == 1
     with pytest.raises(SystemExit, match="substeps=24"):
-        reproduce_ch7.table_stage(rate)
+        ch7_table.table_stage(rate)
 
 
 def test_ch7_expert_set_size_gets_its_own_data_cells_and_table(tmp_path):
@@ -225,44 +248,40 @@ def test_ch7_expert_set_size_gets_its_own_data_cells_and_table(tmp_path):
     their own key (equal to ``--scale`` is the default and keeps the keys) except in RL-sample,
     which does not read the expert set; the table reads only rows of that size (and RL-sample
     rows), and N < 1 is refused."""
-    from scripts import reproduce_ch7
-
     base = ["--out", str(tmp_path), "--envs", "e", "--scale", "4"]
-    plain, same, small = (reproduce_ch7.parse_args(base + extra) for extra in
+    plain, same, small = (ch7_args(base + extra) for extra in
                           ([], ["--expert-scale", "4"], ["--expert-scale", "1"]))
     assert same.expert_scale is None
-    assert reproduce_ch7._cell_key("e", "ILfO", "BCO", same) == reproduce_ch7._cell_key(
-        "e", "ILfO", "BCO", plain) != reproduce_ch7._cell_key("e", "ILfO", "BCO", small)
-    assert reproduce_ch7._cell_key("e", "RL-sample", "BCO", small) == reproduce_ch7._cell_key(
+    assert ch7.cell_key("e", "ILfO", "BCO", same) == ch7.cell_key(
+        "e", "ILfO", "BCO", plain) != ch7.cell_key("e", "ILfO", "BCO", small)
+    assert ch7.cell_key("e", "RL-sample", "BCO", small) == ch7.cell_key(
         "e", "RL-sample", "BCO", plain)  # RL-sample does not read the expert set
-    assert [reproduce_ch7.recipe_scale(small, r) for r in ("mixed", "expert")] == [4, 1]
-    assert [reproduce_ch7.recipe_scale(plain, r) for r in ("mixed", "expert")] == [4, 4]
+    assert [ch7.recipe_scale(small, r) for r in ("mixed", "expert")] == [4, 1]
+    assert [ch7.recipe_scale(plain, r) for r in ("mixed", "expert")] == [4, 4]
     with open(tmp_path / "results.jsonl", "w") as f:
         for sc, a, score in (("ILfO", plain, [1, 2]), ("ILfO", small, [5, 7]),
                              ("RL-sample", plain, [3, 3])):
             f.write(json.dumps(_ch7_row(a, "e", sc, "BC", score)) + "\n")
-    assert reproduce_ch7.table_stage(small)["cells"] == 2  # ILfO and the shared RL-sample row
+    assert ch7_table.table_stage(small)["cells"] == 2  # ILfO and the shared RL-sample row
     assert "6.0 ± 1.0" in (tmp_path / "table.md").read_text()
-    reproduce_ch7.table_stage(plain)
+    ch7_table.table_stage(plain)
     assert "1.5 ± 0.5" in (tmp_path / "table.md").read_text()
-    other = reproduce_ch7.parse_args([*base, "--expert-scale", "3"])
-    assert reproduce_ch7.table_stage(other)["cells"] == 1  # the RL-sample row only
+    other = ch7_args([*base, "--expert-scale", "3"])
+    assert ch7_table.table_stage(other)["cells"] == 1  # the RL-sample row only
     (tmp_path / "results.jsonl").write_text("\n".join(
         x for x in (tmp_path / "results.jsonl").read_text().splitlines() if "RL-sample" not in x))
     with pytest.raises(SystemExit, match="expert_scale=3"):
-        reproduce_ch7.table_stage(other)
+        ch7_table.table_stage(other)
     with pytest.raises(SystemExit):
-        reproduce_ch7.parse_args([*base, "--expert-scale", "0"])
+        ch7_args([*base, "--expert-scale", "0"])
 
 
 def test_ch7_learning_curves_end_at_the_final_scores(tmp_path):
     """``reproduce_ch7.py --curve``: one evaluation per chunk in the row, the last equal to the
     row's final evaluation (same parameters, same episodes)."""
-    from scripts import reproduce_ch7
-
-    reproduce_ch7.main(["--out", str(tmp_path), "--scale", "1", "--steps", "40", "--chunk",
-                        "20", "--hidden", "16", "16", "--seeds", "2", "--eval-episodes", "2",
-                        "--scenarios", "ILfO", "--learners", "BC", "--curve"])
+    ch7_table.run(ch7_args(["--out", str(tmp_path), "--scale", "1", "--steps", "40", "--chunk",
+                            "20", "--hidden", "16", "16", "--seeds", "2", "--eval-episodes",
+                            "2", "--scenarios", "ILfO", "--learners", "BC", "--curve"]))
     (row,) = [json.loads(x) for x in (tmp_path / "results.jsonl").read_text().splitlines()]
     assert row["curve"]["steps"] == [20, 40]
     assert np.asarray(row["curve"]["normalized_score"]).shape == (2, 2)  # steps × seeds
@@ -275,41 +294,36 @@ def test_ch7_oracle_is_trained_once_per_dynamics_dataset(tmp_path):
     """The Oracle reads only the dynamics data: ILfO, RLfO and RL-sample share ``D_X``, so one
     run gives all three rows (the later two copies marked ``shared_from``); IL and RL-expert
     share ``D_X ∪ D_E``."""
-    from offline.data.scenarios import same_dynamics
-    from scripts import reproduce_ch7
-
     assert same_dynamics("RLfO") == ("ILfO", "RLfO", "RL-sample")
     assert same_dynamics("IL") == same_dynamics("RL-expert") == ("IL", "RL-expert")
     budget = ["--scale", "1", "--steps", "20", "--chunk", "20", "--hidden", "16", "16",
               "--seeds", "2", "--eval-episodes", "2", "--learners", "Oracle"]
     argv = ["--out", str(tmp_path), *budget, "--scenarios", "ILfO", "RLfO", "RL-sample"]
-    reproduce_ch7.main(argv)
+    ch7_table.run(ch7_args(argv))
     rows = [json.loads(x) for x in (tmp_path / "results.jsonl").read_text().splitlines()]
     assert [r["scenario"] for r in rows] == ["ILfO", "RLfO", "RL-sample"]
     first, *shared = rows
     assert "shared_from" not in first and first["train_s"] > 0
-    args = reproduce_ch7.parse_args(argv)
+    args = ch7_args(argv)
     for r in shared:
         assert r["shared_from"] == first["cell"] and r["train_s"] == 0
-        assert r["cell"] == reproduce_ch7._cell_key(r["env"], r["scenario"], "Oracle", args)
+        assert r["cell"] == ch7.cell_key(r["env"], r["scenario"], "Oracle", args)
         assert r["normalized_score"] == first["normalized_score"]
     assert rows[1]["reward_transitions"] != rows[2]["reward_transitions"]  # expert vs sample
-    reproduce_ch7.main([*argv, "--stage", "train"])  # resumable: nothing new
+    ch7_table.run(ch7_args([*argv, "--stage", "train"]))  # resumable: nothing new
     assert len((tmp_path / "results.jsonl").read_text().splitlines()) == 3
     # The claim behind the copy: RL-sample's Oracle trained on its own scores the same as ILfO's.
     alone = tmp_path / "alone"
     (alone / "data").mkdir(parents=True)
     for f in (tmp_path / "data").iterdir():
         (alone / "data" / f.name).write_bytes(f.read_bytes())
-    reproduce_ch7.main(["--out", str(alone), *budget, "--scenarios", "RL-sample",
-                        "--stage", "train"])
+    ch7_table.run(ch7_args(["--out", str(alone), *budget, "--scenarios", "RL-sample",
+                            "--stage", "train"]))
     (own,) = [json.loads(x) for x in (alone / "results.jsonl").read_text().splitlines()]
     assert "shared_from" not in own and own["normalized_score"] == first["normalized_score"]
 
 
 def test_train_offline_refuses_bad_arguments(tmp_path, capsys):
-    from scripts import train_offline
-
     for argv, msg in ((["--learner", "GAIL"], "invalid choice"),
                       (["--learner", "BC", "--dataset", str(tmp_path / "nope.npz")],
                        "does not exist"),
@@ -318,5 +332,20 @@ def test_train_offline_refuses_bad_arguments(tmp_path, capsys):
                       (["--learner", "BC", "--betas", "1"], "Bellman weight"),
                       (["--learner", "ATAC", "--betas", "1", "-2"], "finite numbers >= 0")):
         with pytest.raises(SystemExit):
-            train_offline.parse_args(argv)
+            parse(single.OPTIONS, single.check_args, argv)
         assert msg in capsys.readouterr().err
+
+
+def test_scripts_refuse_bad_arguments_on_the_command_line(tmp_path):
+    """The offline scripts, run as programs, exit with status 2 and the package's message when
+    their arguments are refused (before any data is collected)."""
+    for script, argv, msg in (
+            ("reproduce_ch7.py", ["--expert-scale", "0"], "--expert-scale must be >= 1"),
+            ("reproduce_ch8.py", ["--goal-deadline", "0"], "--goal-deadline must be a positive"),
+            ("train_offline.py", ["--learner", "BC", "--steps", "0"], "positive integer"),
+            ("collect.py", ["--recipe", "nope", "--out", str(tmp_path / "x.npz")],
+             "valid recipes are")):
+        done = subprocess.run([sys.executable, str(ROOT / "scripts" / script), *argv,
+                               *(["--out", str(tmp_path)] if script.startswith("repro") else [])],
+                              capture_output=True, text=True, cwd=tmp_path)
+        assert done.returncode == 2 and msg in done.stderr, (script, done.stderr[-500:])

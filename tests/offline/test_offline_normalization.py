@@ -24,7 +24,7 @@ import pytest
 from offline.data import dataset as odata
 from offline.data import scenarios
 from offline.experiment import run as experiment
-from offline.learners import atac, bc, cql, iql, mahalo
+from offline.learners import atac, bc, cql, iql, mahalo, registry
 from offline.learners.base import (
     STD_FLOOR,
     ObservationNormalizer,
@@ -98,7 +98,7 @@ def test_statistics_match_float64_numpy_and_the_identity_is_a_no_op():
 
 def test_defaults_are_off_and_a_default_run_equals_the_explicitly_off_one():
     for cfg in (atac.ATACConfig(), bc.BCConfig(), InverseDynamicsConfig(), iql.IQLConfig(),
-                cql.CQLConfig(), experiment.Budget()):
+                cql.CQLConfig(), registry.Budget()):
         assert cfg.normalize_observations is False, type(cfg).__name__
     ds, _ = _affine_pair()
     base = bc.BCConfig(hidden_sizes=HIDDEN, batch_size=32, num_steps=3)
@@ -180,7 +180,7 @@ def test_experiment_uses_dynamics_statistics_and_supports_traced_rewards():
     expert = odata.create(expert.observations, expert.actions, np.ones(20, np.float32),
                           expert.next_observations, expert.terminals, expert.timeouts,
                           expert.episode_ids + 100, META)
-    budget = experiment.Budget(steps=10, hidden=HIDDEN, batch=8, normalize_observations=True)
+    budget = registry.Budget(steps=10, hidden=HIDDEN, batch=8, normalize_observations=True)
     dyn, rd = scenarios.make("IL", mixed, expert, key=jax.random.PRNGKey(0))
     tr = experiment.build("ATAC", dyn, rd, budget, "IL")  # trains on the shared episodes only
     params = actor_params(jax.jit(tr.init)(jax.random.key(0)))
@@ -198,7 +198,7 @@ def test_experiment_uses_dynamics_statistics_and_supports_traced_rewards():
 
 def test_bad_input_names_the_argument():
     with pytest.raises(ValueError, match="normalize_observations"):
-        experiment.Budget(steps=10, normalize_observations=1)
+        registry.Budget(steps=10, normalize_observations=1)
     for cls in (atac.ATACConfig, bc.BCConfig, InverseDynamicsConfig, iql.IQLConfig,
                 cql.CQLConfig):
         with pytest.raises(ValueError, match="normalize_observations"):

@@ -1,21 +1,45 @@
-"""scripts/reproduce_ch8.py and offline/survival/sweep.py: rewards × seeds vmapped in one program equal
-separate runs; the figures stage computes its acceptance checks from the results (hand-made
-results with known answers); the full CPU smoke end to end (slow)."""
+"""Chapter 8 (offline/survival/sweep.py, ch8*.py; scripts/reproduce_ch8.py): rewards × seeds
+vmapped in one program equal separate runs; the figures stage computes its acceptance checks from
+the results (hand-made results with known answers); the full CPU smoke end to end (slow)."""
 
 from __future__ import annotations
 
+import argparse
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import jax
 import numpy as np
 import pytest
 
+from agents.run import checkpoint
 from offline.data import dataset as odata
+from offline.experiment import programs
 from offline.experiment import run as experiment
-from offline.survival import sweep
-from scripts import reproduce_ch8 as ch8
+from offline.learners import registry
+from offline.survival import ch8, ch8_analysis, ch8_report, sweep
+from offline.survival import rewards as survival
+
+ROOT = Path(__file__).resolve().parents[2]
 
 WRONG = ("zero", "random", "negated")
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    """The arguments ``scripts/reproduce_ch8.py`` parses from ``argv`` (its parser is built from
+    :data:`offline.survival.ch8.OPTIONS` and checked by :func:`offline.survival.ch8.check_args`;
+    a refused argument exits as the script does)."""
+    p = argparse.ArgumentParser()
+    for option in ch8.OPTIONS:
+        p.add_argument(*option.flags, **option.spec)
+    p.add_argument("--out", type=Path)
+    args = p.parse_args(argv)
+    try:
+        return ch8.check_args(args)
+    except ValueError as e:
+        p.error(str(e))
 
 
 def _synthetic(n: int = 120, obs_size: int = 6, seed: int = 0) -> odata.Dataset:
@@ -28,8 +52,6 @@ def _synthetic(n: int = 120, obs_size: int = 6, seed: int = 0) -> odata.Dataset:
 
 
 def test_reward_rows_are_the_survival_variants():
-    from offline.survival import rewards as survival
-
     ds = _synthetic()
     key = sweep.reward_key(0, "x")
     base, rows = sweep.reward_rows(ds, ["original", "random", "negated"], "remove", key)
@@ -41,7 +63,7 @@ def test_reward_rows_are_the_survival_variants():
     np.testing.assert_array_equal(r, rows[[0, 0, 1, 1]])
     np.testing.assert_array_equal(k, experiment.seed_keys([3, 4, 3, 4]))
     with pytest.raises(ValueError, match="learner"):
-        sweep.reward_batched("BC", ds, experiment.Budget(steps=10))
+        sweep.reward_batched("BC", ds, registry.Budget(steps=10))
 
 
 @pytest.mark.parametrize("learner", ["ATAC", "IQL", "CQL"])
@@ -50,7 +72,7 @@ def test_reward_batched_equals_separate_runs(learner):
     built on the relabelled dataset and trained alone (concrete rewards, float32)."""
     ds = _synthetic()
     # the scaled actor rate (×1e5 at 10 steps) so that ATAC's actor moves enough to tell runs apart
-    budget = experiment.Budget(steps=10, hidden=(8, 8), batch=16, actor_rate="scaled")
+    budget = registry.Budget(steps=10, hidden=(8, 8), batch=16, actor_rate="scaled")
     base, rows = sweep.reward_rows(ds, ["original", "random"], "keep", sweep.reward_key(0, "x"))
     trainer = sweep.reward_batched(learner, base, budget)
     state, _ = experiment.train_chunked(trainer, sweep.reward_seed_keys(rows, [0, 1]), 5)
@@ -70,7 +92,7 @@ def test_reward_batched_runs_take_a_beta():
     (``experiment.init_runs`` counts the runs of ``(rewards, keys)``); a wrong count is
     refused."""
     ds = _synthetic()
-    budget = experiment.Budget(steps=10, hidden=(8, 8), batch=16)
+    budget = registry.Budget(steps=10, hidden=(8, 8), batch=16)
     base, rows = sweep.reward_rows(ds, ["zero", "random"], "keep", sweep.reward_key(0, "x"))
     keys = sweep.reward_seed_keys(rows, [0, 1])
     trainer = sweep.reward_batched("PSPI", base, budget)
@@ -85,16 +107,14 @@ def test_interrupted_program_resumes_from_its_checkpoint(tmp_path):
     """A rewards × seeds program stopped after its first chunk continues from the checkpoint
     to the same final state, bit for bit, as an uninterrupted run; the checkpoint of another
     program is refused."""
-    from agents.run import checkpoint
-
     ds = _synthetic()
-    budget = experiment.Budget(steps=10, hidden=(8, 8), batch=16, actor_rate="scaled")
+    budget = registry.Budget(steps=10, hidden=(8, 8), batch=16, actor_rate="scaled")
     base, rows = sweep.reward_rows(ds, ["original", "random"], "keep", sweep.reward_key(0, "x"))
     trainer = sweep.reward_batched("ATAC", base, budget)
     keys = sweep.reward_seed_keys(rows, [0, 1])
-    straight = sweep.train_program(trainer, keys, 5)
-    ckpt = sweep.program_checkpoint_dir(tmp_path, "cell A")
-    assert ckpt.parent == tmp_path and sweep.program_checkpoint_dir(None, "cell A") is None
+    straight = programs.train_program(trainer, keys, 5)
+    ckpt = programs.program_checkpoint_dir(tmp_path, "cell A")
+    assert ckpt.parent == tmp_path and programs.program_checkpoint_dir(None, "cell A") is None
 
     class Stop(Exception):
         pass
@@ -103,16 +123,16 @@ def test_interrupted_program_resumes_from_its_checkpoint(tmp_path):
         raise Stop
 
     with pytest.raises(Stop):
-        sweep.train_program(trainer, keys, 5, stop, ckpt, {"program": "cell A"})
+        programs.train_program(trainer, keys, 5, stop, ckpt, {"program": "cell A"})
     assert checkpoint.latest_step(ckpt) == 5
     seen = []
-    resumed = sweep.train_program(trainer, keys, 5, lambda s, m, d: seen.append(d), ckpt,
+    resumed = programs.train_program(trainer, keys, 5, lambda s, m, d: seen.append(d), ckpt,
                                   {"program": "cell A"})
     assert seen == [10]   # only the second chunk ran
     for a, b in zip(jax.tree.leaves(resumed), jax.tree.leaves(straight), strict=True):
         np.testing.assert_array_equal(a, b)
     with pytest.raises(checkpoint.IncompatibleCheckpointError, match="program"):
-        sweep.train_program(trainer, keys, 5, None, ckpt, {"program": "cell B"})
+        programs.train_program(trainer, keys, 5, None, ckpt, {"program": "cell B"})
 
 
 # --------------------------------------------------------------------------------------------
@@ -147,7 +167,7 @@ def _handmade_dataset(lengths, returns_per_step) -> odata.Dataset:
 
 
 def _row(args, dataset, learner, reward, scores, safe):
-    return {"cell": ch8._cell_key(dataset, learner, reward, args), "dataset": dataset,
+    return {"cell": ch8.cell_key(dataset, learner, reward, args), "dataset": dataset,
             "learner": learner, "reward": reward, "normalized_score": list(scores),
             "safe_pct": [safe] * len(scores), "success_pct": [0.0] * len(scores)}
 
@@ -173,7 +193,7 @@ def _write_results(args, scores, bc, safe):
 @pytest.fixture(scope="module")
 def figures(tmp_path_factory):
     out = tmp_path_factory.mktemp("ch8")
-    args = ch8.parse_args(["--out", str(out), "--recipes", "mixed", "--scale", "1",
+    args = parse_args(["--out", str(out), "--recipes", "mixed", "--scale", "1",
                            "--seeds", "2", "--steps", "50", "--hidden", "16", "16"])
     for name, (lengths, per_step) in {"mixed-cut": ([5, 10, 20, 20], [0.1, 0.2, 0.5, 0.4]),
                                       "mixed-full": ([20] * 4, [0.1, 0.5, 0.3, 0.2])}.items():
@@ -182,7 +202,7 @@ def figures(tmp_path_factory):
         path.parent.mkdir(parents=True, exist_ok=True)
         odata.save(_handmade_dataset(lengths, per_step), path)
     _write_results(args, SCORES, BC, SAFE)
-    summary = ch8.figures_stage(args)
+    summary = ch8_report.figures_stage(args)
     return args, summary
 
 
@@ -204,7 +224,7 @@ def test_acceptance_checks_recomputed_from_results(figures):
     args, summary = figures
     rows = [json.loads(x) for x in (args.out / "results.jsonl").read_text().splitlines()]
     cell = {(r["dataset"], r["learner"], r["reward"]): float(np.mean(r["normalized_score"]))
-            for r in rows if r["cell"] == ch8._cell_key(r["dataset"], r["learner"], r["reward"],
+            for r in rows if r["cell"] == ch8.cell_key(r["dataset"], r["learner"], r["reward"],
                                                         args)}
     # (a): mean over the wrong rewards >= BC + 10
     for d in ("mixed-cut", "mixed-full"):
@@ -228,13 +248,13 @@ def test_acceptance_checks_recomputed_from_results(figures):
 def test_acceptance_flips_with_the_data(figures, tmp_path):
     """Lowering ATAC's wrong-reward scores on the biased dataset turns (a) and (b) False."""
     args, _ = figures
-    args2 = ch8.parse_args(["--out", str(tmp_path), "--recipes", "mixed", "--scale", "1",
+    args2 = parse_args(["--out", str(tmp_path), "--recipes", "mixed", "--scale", "1",
                             "--seeds", "2", "--steps", "50", "--hidden", "16", "16"])
     (tmp_path / "data").symlink_to(args.out / "data")
     scores = dict(SCORES)
     scores[("mixed-cut", "ATAC")] = (90, 40, 45, 5)
     _write_results(args2, scores, BC, SAFE)
-    summary = ch8.figures_stage(args2)
+    summary = ch8_report.figures_stage(args2)
     assert summary["well_above_bc"]["mixed-cut/ATAC"] is False and summary["a"] is False
     assert summary["bias_larger_on_length_biased"]["mixed/ATAC"] is False  # 100/95 < 100/85
     assert summary["b"] is False
@@ -244,12 +264,12 @@ def test_no_safety_leaves_the_safety_report_out(figures, tmp_path):
     """``--no-safety``: no safety.md / safety.json and no safety verdict, even though the
     unfiltered safety dataset's cells are there (the table and figures are still written)."""
     args, _ = figures
-    args2 = ch8.parse_args(["--out", str(tmp_path), "--recipes", "mixed", "--scale", "1",
+    args2 = parse_args(["--out", str(tmp_path), "--recipes", "mixed", "--scale", "1",
                             "--seeds", "2", "--steps", "50", "--hidden", "16", "16",
                             "--no-safety"])
     (tmp_path / "data").symlink_to(args.out / "data")
     _write_results(args2, SCORES, BC, SAFE)
-    summary = ch8.figures_stage(args2)
+    summary = ch8_report.figures_stage(args2)
     assert summary["safety"] is None and summary["a"] is True
     assert (tmp_path / "table.md").exists()
     assert not (tmp_path / "safety.md").exists() and not (tmp_path / "safety.json").exists()
@@ -266,7 +286,7 @@ def test_figures_redrawn_without_the_datasets_use_the_cached_length_statistics(f
         (out / f).write_text((args.out / f).read_text())
     argv = ["--out", str(out), "--recipes", "mixed", "--scale", "1", "--seeds", "2", "--steps",
             "50", "--hidden", "16", "16"]
-    again = ch8.figures_stage(ch8.parse_args(argv))
+    again = ch8_report.figures_stage(parse_args(argv))
     assert again["cut_fraction"] == summary["cut_fraction"] == {"mixed-cut": 0.5,
                                                                "mixed-full": 0.0}
     assert (out / "fig8_5.png").exists()
@@ -274,18 +294,20 @@ def test_figures_redrawn_without_the_datasets_use_the_cached_length_statistics(f
     bare.mkdir()
     (bare / "results.jsonl").write_text((args.out / "results.jsonl").read_text())
     argv[1] = str(bare)
-    third = ch8.figures_stage(ch8.parse_args(argv))
+    third = ch8_report.figures_stage(parse_args(argv))
     assert third["cut_fraction"] == {} and third["a"] == summary["a"]
     assert not (bare / "fig8_5.png").exists() and (bare / "fig8_4.png").exists()
 
 
 @pytest.mark.slow
 def test_cpu_smoke_end_to_end(tmp_path):
-    """The CPU smoke, tiny: every stage, every learner, 2 seeds × 50 steps (minutes)."""
+    """The script's CPU smoke, tiny, as a subprocess: every stage, every learner, 2 seeds × 50
+    steps (minutes)."""
     argv = ["--out", str(tmp_path), "--scale", "1", "--steps", "50", "--hidden", "16", "16",
             "--seeds", "2", "--eval-episodes", "2", "--reference-episodes", "4", "--chunk",
             "25", "--batch", "32"]
-    ch8.main(argv)
+    script = [sys.executable, str(ROOT / "scripts" / "reproduce_ch8.py")]
+    subprocess.run([*script, *argv], check=True)
     rows = [json.loads(x) for x in (tmp_path / "results.jsonl").read_text().splitlines()]
     assert len(rows) == 2 * (4 * 4 + 1) + 3  # 2 datasets × (4 learners × 4 rewards + BC)
     assert {r["learner"] for r in rows if r["filtered"]} == {"ATAC", "PSPI", "BC"}
@@ -297,7 +319,7 @@ def test_cpu_smoke_end_to_end(tmp_path):
         wrong >= cell[("mixed-cut", "BC", "none")] + 10)
     for f in ("fig8_4.png", "fig8_5.png", "fig8_6.png", "table.md", "safety.md"):
         assert (tmp_path / f).exists()
-    ch8.main([*argv, "--stage", "train"])  # resumable: nothing left to train
+    subprocess.run([*script, *argv, "--stage", "train"], check=True)  # resumable: nothing left
     assert len((tmp_path / "results.jsonl").read_text().splitlines()) == len(rows)
 
 
@@ -306,66 +328,66 @@ def test_goal_deadline_datasets_are_named_and_keyed(tmp_path):
     from the cut data, counted as length-biased), whose cells carry N in their key; other cells
     keep their keys."""
     base = ["--out", str(tmp_path), "--recipes", "mixed", "--scale", "1"]
-    args = ch8.parse_args([*base, "--goal-deadline", "200"])
+    args = parse_args([*base, "--goal-deadline", "200"])
     assert args.datasets == ["mixed-cut", "mixed-full", "mixed-deadline", "mixed-goal",
                              "mixed-arrive", "mixed-full-filtered"]
     for name in ("mixed-deadline", "mixed-goal", "mixed-arrive"):
         assert ch8.split_name(name) == ("mixed", True, False)
         assert ch8.is_deadline(name)
-        key = json.loads(ch8._cell_key(name, "ATAC", "zero", args))
+        key = json.loads(ch8.cell_key(name, "ATAC", "zero", args))
         assert key[0] == name and key[key.index("goal_deadline") + 1] == 200
     assert not ch8.is_deadline("mixed-cut") and not ch8.is_deadline("mixed-full")
-    plain = ch8.parse_args(base)
-    assert ch8._cell_key("mixed-cut", "ATAC", "zero", args) == ch8._cell_key(
+    plain = parse_args(base)
+    assert ch8.cell_key("mixed-cut", "ATAC", "zero", args) == ch8.cell_key(
         "mixed-cut", "ATAC", "zero", plain)
     assert "mixed-deadline" not in plain.datasets and "mixed-goal" not in plain.datasets
     with pytest.raises(SystemExit):
-        ch8.parse_args([*base, "--goal-deadline", "0"])
+        parse_args([*base, "--goal-deadline", "0"])
     # --ppo-run: the data of that run's snapshots get their own files and cell keys.
-    ppo = ch8.parse_args([*base, "--ppo-run", str(tmp_path / "nn_run"), "--ppo-step", "40"])
+    ppo = parse_args([*base, "--ppo-run", str(tmp_path / "nn_run"), "--ppo-step", "40"])
     assert ch8.data_path(ppo, "mixed", True).name.endswith("_s0_ppo_nn_run_40.npz")
     assert ch8.data_path(plain, "mixed", True).name.endswith("_s0.npz")
-    assert ch8._cell_key("mixed-cut", "ATAC", "zero", ppo) != ch8._cell_key(
+    assert ch8.cell_key("mixed-cut", "ATAC", "zero", ppo) != ch8.cell_key(
         "mixed-cut", "ATAC", "zero", plain)
     with pytest.raises(SystemExit):
-        ch8.parse_args([*base, "--ppo-step", "40"])
+        parse_args([*base, "--ppo-step", "40"])
     # --substeps: another control rate, with its own data files and cell keys.
-    rate = ch8.parse_args([*base, "--substeps", "24"])
+    rate = parse_args([*base, "--substeps", "24"])
     assert ch8.env_kwargs(rate) == {"substeps": 24, "horizon": 75}
     assert ch8.env_kwargs(plain) is None
     assert ch8.data_path(rate, "mixed", True).name.endswith("_s0_substeps_24.npz")
-    assert ch8._cell_key("mixed-cut", "ATAC", "zero", rate) != ch8._cell_key(
+    assert ch8.cell_key("mixed-cut", "ATAC", "zero", rate) != ch8.cell_key(
         "mixed-cut", "ATAC", "zero", plain)
     with pytest.raises(SystemExit):
-        ch8.parse_args([*base, "--substeps", "7"])
+        parse_args([*base, "--substeps", "7"])
     # --reward-form goal: new keys for the rewards made from the true one, shared ones for
     # zero and random (the same data under either form).
-    goal = ch8.parse_args([*base, "--reward-form", "goal"])
+    goal = parse_args([*base, "--reward-form", "goal"])
     for reward in ("original", "negated"):
-        key = json.loads(ch8._cell_key("mixed-cut", "ATAC", reward, goal))
+        key = json.loads(ch8.cell_key("mixed-cut", "ATAC", reward, goal))
         assert key[-2:] == ["reward_form", "goal"]
-        assert ch8._cell_key("mixed-cut", "ATAC", reward, plain) != json.dumps(key)
+        assert ch8.cell_key("mixed-cut", "ATAC", reward, plain) != json.dumps(key)
     for reward in ("zero", "random"):
-        assert ch8._cell_key("mixed-cut", "ATAC", reward, goal) == ch8._cell_key(
+        assert ch8.cell_key("mixed-cut", "ATAC", reward, goal) == ch8.cell_key(
             "mixed-cut", "ATAC", reward, plain)
     with pytest.raises(SystemExit):
-        ch8.parse_args([*base, "--reward-form", "negative"])
+        parse_args([*base, "--reward-form", "negative"])
     # --beta: ATAC and PSPI cells get their own keys; BC, IQL and CQL keep theirs.
-    pess = ch8.parse_args([*base, "--beta", "1"])
+    pess = parse_args([*base, "--beta", "1"])
     for learner in ("ATAC", "PSPI"):
-        key = json.loads(ch8._cell_key("mixed-cut", learner, "zero", pess))
+        key = json.loads(ch8.cell_key("mixed-cut", learner, "zero", pess))
         assert key[-2:] == ["beta", 1.0]
     for learner, reward in (("BC", "none"), ("IQL", "zero"), ("CQL", "zero")):
-        assert ch8._cell_key("mixed-cut", learner, reward, pess) == ch8._cell_key(
+        assert ch8.cell_key("mixed-cut", learner, reward, pess) == ch8.cell_key(
             "mixed-cut", learner, reward, plain)
     with pytest.raises(SystemExit):
-        ch8.parse_args([*base, "--beta", "-1"])
+        parse_args([*base, "--beta", "-1"])
 
 
 def test_substeps_collects_and_loads_at_that_control_rate(tmp_path):
     """``--substeps 24``: the data are collected and checked with 24 physics substeps per
     control step and a 75-step horizon (10 Hz, the same 7.5 s episodes)."""
-    args = ch8.parse_args(["--out", str(tmp_path), "--recipes", "random", "--scale", "1",
+    args = parse_args(["--out", str(tmp_path), "--recipes", "random", "--scale", "1",
                            "--substeps", "24", "--no-safety"])
     ch8.collect_stage(args)
     ds = ch8.load_dataset(args, "random-full")
@@ -393,9 +415,9 @@ def test_learning_curves_end_at_the_final_scores_and_the_goal_form_is_trained(tm
             "1", "--steps", "40", "--chunk", "20", "--hidden", "16", "16", "--seeds", "2",
             "--eval-episodes", "2", "--reference-episodes", "4", "--batch", "32", "--curve",
             "--reward-form", "goal"]
-    ch8.main(argv)
+    ch8_report.run(parse_args(argv))
     (shifted, (_, r_max), trained), = seen
-    true = np.asarray(ch8.load_dataset(ch8.parse_args(argv), "mixed-full").rewards)
+    true = np.asarray(ch8.load_dataset(parse_args(argv), "mixed-full").rewards)
     np.testing.assert_allclose(shifted, true - r_max, rtol=0, atol=1e-6)
     assert (shifted <= 0).all() and (trained[0] >= 0).all() and (trained[1] == 0).all()
     np.testing.assert_array_equal(trained[0], -shifted)
@@ -409,22 +431,22 @@ def test_learning_curves_end_at_the_final_scores_and_the_goal_form_is_trained(tm
         for k in ("normalized_score", "safe_pct", "success_pct"):
             assert curve[k][-1] == r[k], k
     assert (tmp_path / "fig8_curves.png").stat().st_size > 0
-    cells = ch8.load_cells(ch8.parse_args(argv))
+    cells = ch8_analysis.load_cells(parse_args(argv))
     assert set(cells) == {("mixed-full", "ATAC", "negated"), ("mixed-full", "ATAC", "zero")}
     # the environment's form shares the zero cell but not the negated one
-    env_form = ch8.load_cells(ch8.parse_args(argv[:-2]))
+    env_form = ch8_analysis.load_cells(parse_args(argv[:-2]))
     assert set(env_form) == {("mixed-full", "ATAC", "zero")}
     c = cells[("mixed-full", "ATAC", "zero")]
     assert c["curve"]["mean"][-1] == pytest.approx(c["mean"])
 
 
 def test_learning_curve_keeps_points_per_cell():
-    """``sweep.LearningCurve``: ``after`` runs the wrapped callback, then records; ``groups``
+    """``programs.LearningCurve``: ``after`` runs the wrapped callback, then records; ``groups``
     gives per cell the steps and each metric's per-seed values per step; no points (a program
     resumed at its last chunk) give no groups."""
     results = iter([[{"normalized_score": [1.0, 2.0]}, {"normalized_score": [3.0, 4.0]}],
                     [{"normalized_score": [5.0, 6.0]}, {"normalized_score": [7.0, 8.0]}]])
-    curve = sweep.LearningCurve(lambda state: next(results))
+    curve = programs.LearningCurve(lambda state: next(results))
     assert curve.groups() == []
     seen = []
     on_chunk = curve.after(lambda state, means, steps: seen.append(steps))
@@ -437,21 +459,22 @@ def test_learning_curve_keeps_points_per_cell():
 
 
 def test_learning_curve_points_survive_a_resumed_program(tmp_path):
-    """With a ``path`` (:func:`offline.survival.sweep.curve_path` of the program's checkpoint folder)
-    the points written before an interruption are read back by the next process, which adds
-    its own; :func:`offline.survival.sweep.remove_program_checkpoints` deletes folder and file."""
-    ckpt = sweep.program_checkpoint_dir(tmp_path, "cell A")
-    path = sweep.curve_path(ckpt)
-    assert path.parent == tmp_path and sweep.curve_path(None) is None
-    first = sweep.LearningCurve(lambda state: [{"normalized_score": [float(state)]}], path)
+    """With a ``path`` (:func:`offline.experiment.programs.curve_path` of the program's
+    checkpoint folder) the points written before an interruption are read back by the next
+    process, which adds its own; :func:`offline.experiment.programs.remove_program_checkpoints`
+    deletes folder and file."""
+    ckpt = programs.program_checkpoint_dir(tmp_path, "cell A")
+    path = programs.curve_path(ckpt)
+    assert path.parent == tmp_path and programs.curve_path(None) is None
+    first = programs.LearningCurve(lambda state: [{"normalized_score": [float(state)]}], path)
     first.record(1, 10)
     first.record(2, 20)
-    resumed = sweep.LearningCurve(lambda state: [{"normalized_score": [float(state)]}], path)
+    resumed = programs.LearningCurve(lambda state: [{"normalized_score": [float(state)]}], path)
     resumed.record(3, 30)
     assert resumed.groups() == [{"steps": [10, 20, 30],
                                  "normalized_score": [[1.0], [2.0], [3.0]]}]
-    assert sweep.LearningCurve(lambda state: [], None).steps == []
+    assert programs.LearningCurve(lambda state: [], None).steps == []
     ckpt.mkdir()
-    sweep.remove_program_checkpoints(ckpt)
+    programs.remove_program_checkpoints(ckpt)
     assert not ckpt.exists() and not path.exists()
-    sweep.remove_program_checkpoints(None)
+    programs.remove_program_checkpoints(None)

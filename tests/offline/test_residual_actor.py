@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 
 import jax
@@ -25,7 +26,8 @@ import envs
 from mjxrmp import policies as rmp_policies
 from offline.data import dataset as odata
 from offline.experiment import run as experiment
-from offline.learners import atac, bc, cql, iql, residual_actor
+from offline.experiment import settings
+from offline.learners import atac, bc, cql, iql, registry, residual_actor
 from offline.learners.base import actor_params
 from offline.learners.residual_actor import (
     BASE_CLIP,
@@ -159,7 +161,7 @@ def test_precomputed_bases_are_the_actors_own(states, monkeypatch):
 def test_learners_train_from_the_base_with_the_residual_actor(states):
     _, obs, inputs = states
     ds = _dataset(obs)
-    budget = experiment.Budget(steps=20, hidden=HIDDEN, batch=8, actor="nn_residual")
+    budget = registry.Budget(steps=20, hidden=HIDDEN, batch=8, actor="nn_residual")
     ref = np.clip(np.tanh(_reference_base(inputs)), -1, 1)
     for learner in ("BC", "Oracle", "IQL", "CQL"):
         trainer = experiment.build(learner, ds, None, budget)
@@ -173,11 +175,9 @@ def test_learners_train_from_the_base_with_the_residual_actor(states):
 
 def test_reward_batched_programs_get_concrete_bases(states, monkeypatch):
     """The chapter-8 programs build each learner inside the traced ``run``
-    (``offline.survival.sweep.reward_batched``); the RMP² bases must still be computed from concrete
-    data — once, when traced — not staged into the program and recomputed on every call."""
-    from offline.learners import atac, cql, iql
-    from offline.survival import sweep
-
+    (``offline.survival.sweep.reward_batched``); the RMP² bases must still be computed from
+    concrete data — once, when traced — not staged into the program and recomputed on every
+    call."""
     _, obs, _ = states
     ds = _dataset(obs)
     seen = []
@@ -188,7 +188,7 @@ def test_reward_batched_programs_get_concrete_bases(states, monkeypatch):
 
     for module in (atac, iql, cql):
         monkeypatch.setattr(module, "dataset_bases", spy)
-    budget = experiment.Budget(steps=10, hidden=HIDDEN, batch=8, actor="nn_residual")
+    budget = registry.Budget(steps=10, hidden=HIDDEN, batch=8, actor="nn_residual")
     base, rows = sweep.reward_rows(ds, ["original", "zero"], "keep", sweep.reward_key(0, "x"))
     for learner in ("ATAC", "IQL", "CQL"):
         trainer = sweep.reward_batched(learner, base, budget)
@@ -200,7 +200,7 @@ def test_reward_batched_programs_get_concrete_bases(states, monkeypatch):
 
 def test_mlp_actor_is_the_default_and_unchanged():
     for cfg in (atac.ATACConfig(), bc.BCConfig(), iql.IQLConfig(), cql.CQLConfig(),
-                experiment.Budget(steps=10)):
+                registry.Budget(steps=10)):
         assert cfg.actor == "mlp"
     actor = make_actor("mlp", {}, 3, HIDDEN)
     assert actor == TanhGaussianPolicy(3, HIDDEN, "relu")
@@ -215,7 +215,7 @@ def test_bad_input_names_the_argument(states):
         with pytest.raises(ValueError, match="normalize_observations"):
             cls(actor="nn_residual", normalize_observations=True)
     with pytest.raises(ValueError, match="normalize_observations"):
-        experiment.Budget(steps=10, actor="nn_residual", normalize_observations=True)
+        registry.Budget(steps=10, actor="nn_residual", normalize_observations=True)
     with pytest.raises(ValueError, match=r"lacks \['env'\]"):
         make_actor("nn_residual", {"action_limit": 1.0}, 3, HIDDEN)
     with pytest.raises(ValueError, match="action_size=9"):
@@ -223,21 +223,20 @@ def test_bad_input_names_the_argument(states):
 
 
 def test_scripts_give_non_default_actors_their_own_cells():
-    import argparse
-
     p = argparse.ArgumentParser()
-    sweep.add_learner_options(p)
+    for option in settings.LEARNER_OPTIONS:
+        p.add_argument(*option.flags, **option.spec)
     default = p.parse_args([])
     legacy = p.parse_args(["--actor-rate", "scaled"])  # the settings of our first results
     residual = p.parse_args(["--actor", "nn_residual", "--actor-rate", "scaled"])
     assert default.actor == "mlp" and default.actor_rate == "published"
-    assert sweep.setting_key(legacy) == []
-    assert sweep.setting_key(default) == ["actor_rate", "published"]
-    assert sweep.setting_key(residual) == ["actor", "nn_residual"]
+    assert settings.setting_key(legacy) == []
+    assert settings.setting_key(default) == ["actor_rate", "published"]
+    assert settings.setting_key(residual) == ["actor", "nn_residual"]
     longer = p.parse_args(["--warmstart", "0.5"])
-    assert sweep.setting_key(longer) == ["warmstart", 0.5, "actor_rate", "published"]
-    assert experiment.Budget(steps=100, **sweep.setting_fields(longer)).warmstart == 0.5
-    keys = {json.dumps(sweep.setting_key(a)) for a in (default, legacy, residual, longer)}
+    assert settings.setting_key(longer) == ["warmstart", 0.5, "actor_rate", "published"]
+    assert registry.Budget(steps=100, **settings.setting_fields(longer)).warmstart == 0.5
+    keys = {json.dumps(settings.setting_key(a)) for a in (default, legacy, residual, longer)}
     assert len(keys) == 4  # every setting its own cells
     with pytest.raises(SystemExit):
         p.parse_args(["--actor", "rmp"])
@@ -245,10 +244,10 @@ def test_scripts_give_non_default_actors_their_own_cells():
 
 def test_actor_rate_rule_of_shortened_atac_runs():
     # Published (default): 5e-7; scaled: 5e-7 × 1e6 / steps keeps the published rate × steps.
-    scaled = experiment.atac_config(experiment.Budget(steps=20_000, actor_rate="scaled"))
-    published = experiment.atac_config(experiment.Budget(steps=20_000))
+    scaled = registry.atac_config(registry.Budget(steps=20_000, actor_rate="scaled"))
+    published = registry.atac_config(registry.Budget(steps=20_000))
     assert scaled.actor_lr == pytest.approx(2.5e-5) and published.actor_lr == 5e-7
     assert scaled.warmstart_steps == published.warmstart_steps == 2_000
     assert scaled.critic_lr == published.critic_lr
     with pytest.raises(ValueError, match="actor_rate must be one of"):
-        experiment.Budget(steps=10, actor_rate="fast")
+        registry.Budget(steps=10, actor_rate="fast")

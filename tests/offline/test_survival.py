@@ -15,12 +15,13 @@ import numpy as np
 import pytest
 
 import mjxrmp  # noqa: F401  (XLA flags first)
+from offline.data import behaviours, rollouts
 from offline.data import collect as oc
 from offline.data import dataset as odata
 from offline.survival import rewards as sv
 
 ENV, HORIZON, BATCH, SEED = "three_link/env3", 150, 8, 2
-BEHAVIOUR = oc.noisy_expert(3.0)
+BEHAVIOUR = behaviours.noisy_expert(3.0)
 
 
 def _handmade() -> odata.Dataset:
@@ -41,7 +42,7 @@ def collected():
     for cut in (True, False):
         ds = oc.collect(ENV, BEHAVIOUR, BATCH, key=key, seed=SEED, horizon=HORIZON,
                         batch_size=BATCH, cut_at_collision=cut)
-        traj = oc.rollout(ENV, BEHAVIOUR, BATCH, key, horizon=HORIZON, batch_size=BATCH,
+        traj = rollouts.rollout(ENV, BEHAVIOUR, BATCH, key, horizon=HORIZON, batch_size=BATCH,
                           cut_at_collision=cut)
         out[cut] = (ds, traj)
     return out
@@ -230,7 +231,7 @@ def test_uncut_dataset_has_full_horizon_episodes_and_no_terminals(collected):
     assert rec.metadata["cut_at_collision"] is False
     np.testing.assert_array_equal(odata.episode_statistics(rec)[0].lengths, HORIZON)
     with pytest.raises(ValueError, match="cut_at_collision must be a bool"):
-        oc.rollout(ENV, BEHAVIOUR, 1, jax.random.PRNGKey(0), cut_at_collision=0)
+        rollouts.rollout(ENV, BEHAVIOUR, 1, jax.random.PRNGKey(0), cut_at_collision=0)
 
 
 def _goal_dataset(distances: list[list[float]], ends: list[str]) -> odata.Dataset:

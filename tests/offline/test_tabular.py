@@ -1,6 +1,7 @@
-"""Tabular survival-instinct experiment (offline/survival/tabular.py, thesis §8.3.1 Fig. 8.2): PEVI's
-pessimism (lower bound on its own policy's true value), PEVI vs BC with wrong rewards, exact
-evaluation vs brute-force enumeration in float64, the length bias of the data, bad inputs."""
+"""Tabular survival-instinct experiment (offline/survival/gridworld.py and tabular.py, thesis §8.3.1
+Fig. 8.2): PEVI's pessimism (lower bound on its own policy's true value), PEVI vs BC with wrong
+rewards, exact evaluation vs brute-force enumeration in float64, the length bias of the data, bad
+inputs."""
 
 import itertools
 
@@ -10,10 +11,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from offline.survival import gridworld as gw
 from offline.survival import tabular as tb
 
-WORLD = tb.GridWorld()
-SMALL = tb.GridWorld(layout=("S.L", ".#K", "..."), horizon=4)
+WORLD = gw.GridWorld()
+SMALL = gw.GridWorld(layout=("S.L", ".#K", "..."), horizon=4)
 
 
 @pytest.fixture(scope="module")
@@ -78,20 +80,20 @@ def test_unseen_actions_get_the_lowest_return(data):
 @pytest.mark.parametrize("seed", range(4))
 def test_pevi_reaches_key_with_every_reward_while_bc_touches_lava(seed):
     data = tb.collect(WORLD, tb.DataConfig(), seed)
-    bc = tb.rollout(WORLD, tb.behaviour_cloning(data))
+    bc = gw.rollout(WORLD, tb.behaviour_cloning(data))
     assert bc.touched_lava and not bc.reached_key and bc.return_ == -1.0
     optimal = float(WORLD.optimal_values()[0][0, WORLD.start])
     for kind in tb.REWARDS:
         out = tb.pevi(tb.relabel(data, tb.reward_table(WORLD, kind, seed), kind),
                       tb.PEVIConfig())
-        roll = tb.rollout(WORLD, np.asarray(out.policy))
+        roll = gw.rollout(WORLD, np.asarray(out.policy))
         assert roll.reached_key and not roll.touched_lava, kind
         assert roll.return_ == optimal == 1.0
 
 
 def _enumerate_values(world, probs, reward):
     """V_0(s) for every s by enumerating all action sequences (float64)."""
-    num_a = len(tb.ACTIONS)
+    num_a = len(gw.ACTIONS)
     values = np.zeros(world.num_states)
     for s0 in range(world.num_states):
         for seq in itertools.product(range(num_a), repeat=world.horizon):
@@ -126,7 +128,7 @@ def test_exact_evaluation_matches_enumeration():
 
 def test_rollout_return_equals_exact_value_and_true_reward_layout():
     pi = WORLD.optimal_values()[2]
-    roll = tb.rollout(WORLD, np.asarray(pi))
+    roll = gw.rollout(WORLD, np.asarray(pi))
     assert roll.reached_key and not roll.touched_lava
     value = float(WORLD.true_values(np.asarray(pi))[0][0, WORLD.start])
     assert roll.return_ == pytest.approx(value)
@@ -170,15 +172,15 @@ def test_relabelling(data):
 @pytest.mark.parametrize(("make", "match"), [
     (lambda: tb.PEVIConfig(penalty=-0.1), "penalty"),
     (lambda: tb.PEVIConfig(reward_range=(1.0, -1.0)), "reward_range"),
-    (lambda: tb.GridWorld(horizon=0), "horizon"),
-    (lambda: tb.GridWorld(layout=("S..", "...")), "key"),
-    (lambda: tb.GridWorld(layout=("S.K", "..")), "same length"),
-    (lambda: tb.GridWorld(layout=("S.K", ".x.")), "layout"),
+    (lambda: gw.GridWorld(horizon=0), "horizon"),
+    (lambda: gw.GridWorld(layout=("S..", "...")), "key"),
+    (lambda: gw.GridWorld(layout=("S.K", "..")), "same length"),
+    (lambda: gw.GridWorld(layout=("S.K", ".x.")), "layout"),
     (lambda: tb.DataConfig(noise=1.5), "noise"),
     (lambda: tb.DataConfig(num_trajectories=0), "num_trajectories"),
     (lambda: tb.collect(WORLD, tb.DataConfig(episode_length=WORLD.horizon), 0), "episode_length"),
     (lambda: tb.reward_table(WORLD, "ones"), "kind"),
-    (lambda: tb.rollout(WORLD, np.zeros(3, np.int32)), "policy"),
+    (lambda: gw.rollout(WORLD, np.zeros(3, np.int32)), "policy"),
     (lambda: WORLD.true_values(np.zeros((2, 4))), "policy"),
 ])
 def test_bad_inputs_raise(make, match):

@@ -1,4 +1,5 @@
-"""offline.learners.tanh_gaussian: change-of-variables log-probability, density checks, module output."""
+"""offline.learners.tanh_gaussian: change-of-variables log-probability, density checks, module
+output."""
 
 from __future__ import annotations
 

@@ -1,0 +1,115 @@
+"""Learning from one rollout: GAE, then ``update_epochs × num_minibatches`` Adam steps on the
+clipped-surrogate loss (thesis §6.2.3), each epoch a fresh shuffle (``lax.scan`` throughout).
+
+The batch ``(T, N, ...)`` is laid out environment-major in ``blocks`` equal blocks of whole
+environments (one per device under a mesh, so shuffling never moves data between devices);
+every minibatch takes the same number of samples from each block.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import optax
+from jax.sharding import Mesh
+
+from agents.ppo.config import PPOConfig
+from agents.ppo.losses import gae, ppo_loss
+from agents.ppo.networks import PPONetworks
+from agents.ppo.normalization import update_stats
+from agents.ppo.rollout import episode_metrics
+from agents.ppo.sharding import batch_axis_sharding
+from agents.ppo.state import TrainState, Transition
+
+
+def make_optimizer(config: PPOConfig) -> optax.GradientTransformation:
+    """Adam (``learning_rate``, ``adam_eps``) after global-norm clipping at ``max_grad_norm``
+    (none when it is None)."""
+    tx = optax.adam(config.learning_rate, eps=config.adam_eps)
+    if config.max_grad_norm is not None:
+        tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), tx)
+    return tx
+
+
+def shuffle_blocks(config: PPOConfig, mesh: Mesh | None) -> int:
+    """How many blocks an epoch shuffles within (``config.shuffle_blocks``, else one per
+    device of ``mesh``, else 1)."""
+    return config.shuffle_blocks or (1 if mesh is None else mesh.size)
+
+
+def _to_blocks(x: jax.Array, blocks: int) -> jax.Array:
+    """``(T, N, ...) -> (blocks, N/blocks·T, ...)``, environment-major: each block holds whole
+    environments and stays on the device that stepped them."""
+    x = jnp.swapaxes(x, 0, 1)
+    return x.reshape((blocks, -1, *x.shape[2:]))
+
+
+def _minibatches(x: jax.Array, perm: jax.Array, n_mb: int) -> jax.Array:
+    """``(blocks, block_len, ...)`` permuted per block by ``perm`` → ``(n_mb, mb_size, ...)``,
+    block-major inside a minibatch."""
+    blocks = x.shape[0]
+    x = jax.vmap(lambda xb, pb: xb[pb])(x, perm)
+    x = x.reshape((blocks, n_mb, -1, *x.shape[2:]))
+    return jnp.swapaxes(x, 0, 1).reshape((n_mb, -1, *x.shape[3:]))
+
+
+def make_update(nets: PPONetworks, tx: optax.GradientTransformation, config: PPOConfig,
+                mesh: Mesh | None = None
+                ) -> Callable[[TrainState, Transition, jax.Array], tuple[TrainState, dict]]:
+    """``update(ts, transitions, key) -> (ts, metrics)``: GAE, the SGD epochs, the observation
+    statistics merged with the rollout (after the update, so an iteration's rollout and update
+    see the same statistics) and the iteration's metrics (means over every minibatch update
+    plus :func:`agents.ppo.rollout.episode_metrics`)."""
+    n_mb = config.num_minibatches
+    blocks = shuffle_blocks(config, mesh)
+    block_len = config.batch_size // blocks
+    constrain_blocks = batch_axis_sharding(mesh, blocks)
+    constrain_mb = batch_axis_sharding(mesh, config.minibatch_size)
+
+    def loss(params, batch, stats):
+        return ppo_loss(params, batch, lambda p, o: nets.policy_apply(p, o, stats),
+                        lambda p, o: nets.value_apply(p, o, stats), config.clip_eps,
+                        config.vf_coef, config.ent_coef, config.normalize_advantages)
+
+    loss_grad = jax.value_and_grad(loss, has_aux=True)
+
+    def update_minibatch(carry, mb):
+        params, opt_state, stats = carry
+        (_, metrics), grads = loss_grad(params, constrain_mb(mb), stats)
+        updates, opt_state = tx.update(grads, opt_state, params)
+        return (optax.apply_updates(params, updates), opt_state, stats), metrics
+
+    def update_epoch(carry, key):
+        params, opt_state, stats, flat = carry
+        perm = jax.vmap(lambda k: jax.random.permutation(k, block_len))(
+            jax.random.split(key, blocks))
+        mbs = constrain_mb(jax.tree.map(lambda x: _minibatches(x, perm, n_mb), flat), 1)
+        (params, opt_state, _), metrics = jax.lax.scan(
+            update_minibatch, (params, opt_state, stats), mbs)
+        return (params, opt_state, stats, flat), metrics
+
+    def update(ts, tr, key):
+        stats = ts.obs_stats
+        last_value = nets.value_apply(ts.params["value"], ts.env_state.obs, stats)
+        adv, ret = gae(tr.rewards, tr.values, tr.dones, tr.truncations, last_value,
+                       config.gamma, config.gae_lambda)
+        flat = {"obs": tr.obs, "actions": tr.actions, "log_probs": tr.log_probs,
+                "advantages": adv, "returns": ret}
+        flat = constrain_blocks(jax.tree.map(lambda x: _to_blocks(x, blocks), flat))
+        (params, opt_state, _, _), upd = jax.lax.scan(
+            update_epoch, (ts.params, ts.opt_state, stats, flat),
+            jax.random.split(key, config.update_epochs))
+        if config.normalize_observations:
+            stats = update_stats(stats, tr.obs)
+        metrics = {k: jnp.mean(v) for k, v in upd.items()}
+        metrics.update(episode_metrics(tr))
+        ts = ts._replace(params=params, opt_state=opt_state, obs_stats=stats,
+                         iteration=ts.iteration + 1)
+        return ts, metrics
+
+    return update
+
+
+__all__ = ["make_optimizer", "make_update", "shuffle_blocks"]

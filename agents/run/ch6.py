@@ -1,0 +1,230 @@
+"""Thesis chapter 6: PPO with NN, NN-residual and RMP-residual policies on the 3-link reaching
+setups env1/env2/env3 and the Franka, several seeds each; Fig 6.2 (mean episode reward), Fig 6.3
+(safe-episode %) and Fig 6.4 (Franka), mean ± 1 std over seeds. ``scripts/reproduce_ch6.py``
+calls :func:`reproduce`.
+
+Two stages, each resumable:
+
+* ``train`` (:func:`train_all`) — for every (environment, policy) pair, a run directory
+  ``<runs>/<env>_<policy>`` trained by :func:`agents.run.training.run_training` (all seeds in one
+  vmapped program); a finished run is skipped, an unfinished one resumed. Per-run speed (compile
+  time, steps/s, the per-iteration split rollout / policy forward / update) goes to
+  ``<runs>/<env>_<policy>/speed.json``.
+* ``plot`` (:func:`plot_all`) — reads every run's ``metrics.csv`` and writes ``fig6_2.png``,
+  ``fig6_3.png``, ``fig6_4.png``, ``ch6_summary.csv`` and ``ch6_summary.json`` (final reward,
+  minimum and mean safe % over iterations, per policy and setup). Curves and the minimum safe %
+  use RLlib's reporting: each iteration averages the most recent ≥ 100 finished episodes
+  (:func:`agents.run.curves.episode_window`); the per-iteration minimum is in the table too.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import sys
+import time
+import warnings
+from collections.abc import Sequence
+from typing import Any
+
+import jax
+import numpy as np
+
+from agents.run import checkpoint
+from agents.run.curves import episode_window
+from agents.run.logs import nanmean, read_csv
+from agents.run.program import build, profile_iteration
+from agents.run.spec import RunSpec, preset
+from agents.run.training import run_training
+
+THREE_LINK = ("three_link/env1", "three_link/env2", "three_link/env3")
+ENVS = (*THREE_LINK, "franka")
+POLICIES = ("nn", "nn_residual", "rmp_residual")
+LABELS = {"nn": "NN", "nn_residual": "NN-RESIDUAL", "rmp_residual": "RMP-RESIDUAL",
+          "rmp_residual_env": "RMP-RESIDUAL (in env)", "hand_designed": "HAND-DESIGNED"}
+COLORS = {"nn": "0.35", "nn_residual": "tab:red", "rmp_residual": "tab:blue",
+          "rmp_residual_env": "tab:green", "hand_designed": "tab:orange"}
+
+
+def run_dir(runs: str, env: str, policy: str) -> str:
+    """``<runs>/<env with / → ->_<policy>``."""
+    return os.path.join(runs, f"{env.replace('/', '-')}_{policy}")
+
+
+def _train_one(spec: RunSpec, out: str, resume: bool, progress: bool) -> dict[str, Any]:
+    """Train (or resume) one run; its speed record (also written to ``out/speed.json``)."""
+    t0 = time.perf_counter()
+    result = run_training(spec, out, resume=resume, progress=progress)
+    wall = time.perf_counter() - t0
+    speed = {
+        "env": spec.env, "policy": spec.policy, "seeds": list(spec.seeds),
+        "iterations": int(result.history["mean_reward"].shape[1]),
+        "env_steps": result.env_steps, "compile_s": result.compile_seconds,
+        "train_s": result.train_seconds, "wall_s": wall,
+        "steps_per_s": result.env_steps / max(result.train_seconds, 1e-9),
+        "iteration_split_s": profile_iteration(build(spec), result.state),
+        "device": str(jax.devices()[0].device_kind),
+        "date": time.strftime("%Y-%m-%d"),
+    }
+    with open(os.path.join(out, "speed.json"), "w") as f:
+        json.dump(speed, f, indent=1)
+    return speed
+
+
+def train_all(runs: str, envs: Sequence[str] = ENVS, policies: Sequence[str] = POLICIES,
+              seeds: Sequence[int] = (0, 1, 2, 3), preset_name: str = "thesis",
+              iterations: int | None = None, log_every: int = 25, checkpoint_every: int = 100,
+              progress: bool = True) -> None:
+    """The ``train`` stage (see the module docstring)."""
+    overrides = {} if iterations is None else {"total_iterations": iterations}
+    for env in envs:
+        for policy in policies:
+            spec = RunSpec(env=env, policy=policy, seeds=tuple(seeds),
+                           ppo=preset(preset_name, **overrides), log_every=log_every,
+                           checkpoint_every=checkpoint_every)
+            out = run_dir(runs, env, policy)
+            step = checkpoint.latest_step(os.path.join(out, "checkpoints"))
+            if step is not None and step >= spec.ppo.total_iterations:
+                print(f"{out}: finished ({step} iterations), skipped", file=sys.stderr)
+                continue
+            print(f"== {policy} on {env}: {len(spec.seeds)} seeds × "
+                  f"{spec.ppo.total_iterations} iterations × {spec.ppo.batch_size} steps",
+                  file=sys.stderr)
+            speed = _train_one(spec, out, step is not None, progress)
+            print(json.dumps(speed), file=sys.stderr)
+
+
+def load_runs(runs: str) -> dict[tuple[str, str], dict[str, np.ndarray]]:
+    """``{(env, policy): history}`` for every run directory under ``runs`` with a metrics.csv."""
+    out = {}
+    for env in ENVS:
+        for policy in LABELS:
+            path = os.path.join(run_dir(runs, env, policy), "metrics.csv")
+            if os.path.exists(path):
+                out[(env, policy)] = read_csv(path)[0]
+    return out
+
+
+def _panel(ax: Any, runs: dict, env: str, key: str, scale: float, smooth: int,
+           ylabel: str) -> None:
+    for policy in LABELS:
+        if (env, policy) not in runs:
+            continue
+        v = episode_window(runs[(env, policy)], key, smooth) * scale
+        it = np.arange(1, v.shape[1] + 1)
+        mean = nanmean(v, axis=0)
+        std = np.sqrt(np.maximum(nanmean((v - mean) ** 2, axis=0), 0.0))
+        ax.plot(it, mean, color=COLORS[policy], label=LABELS[policy], lw=1.4)
+        ax.fill_between(it, mean - std, mean + std, color=COLORS[policy], alpha=0.2, lw=0)
+    ax.set_xlabel("iteration")
+    ax.set_ylabel(ylabel)
+    if scale == 100.0:
+        ax.set_ylim(-2, 102)
+    ax.grid(alpha=0.3)
+
+
+def plot_figures(runs: dict, figures: str, smooth: int) -> None:
+    """``fig6_2.png`` (reward) and ``fig6_3.png`` (safe %) over the 3-link setups and, when a
+    Franka run exists, ``fig6_4.png``."""
+    import matplotlib  # lazy: optional dependency (the "plots" extra)
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # lazy: optional dependency (after the backend is set)
+
+    reward = ("mean_episode_return", 1.0, "mean episode reward")
+    safe = ("safe_fraction", 100.0, "safe episodes (%)")
+    for name, (key, scale, ylabel) in (("fig6_2.png", reward), ("fig6_3.png", safe)):
+        fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+        for ax, env in zip(axes, THREE_LINK, strict=True):
+            _panel(ax, runs, env, key, scale, smooth, ylabel)
+            ax.set_title(env.split("/")[1])
+        axes[0].legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(os.path.join(figures, name), dpi=120)
+        plt.close(fig)
+    if any(env == "franka" for env, _ in runs):
+        fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
+        for ax, (key, scale, ylabel) in zip(axes, (reward, safe), strict=True):
+            _panel(ax, runs, "franka", key, scale, smooth, ylabel)
+        axes[0].legend(fontsize=8)
+        fig.suptitle("Franka reaching")
+        fig.tight_layout()
+        fig.savefig(os.path.join(figures, "fig6_4.png"), dpi=120)
+        plt.close(fig)
+
+
+def summary_row(env: str, policy: str, h: dict[str, np.ndarray]) -> dict[str, Any]:
+    """Final reward (mean over the last 5 % of iterations and the seeds, ± std over seeds),
+    minimum safe % (100-episode window: seed mean and any seed; per iteration: any seed), mean
+    and early (first 20 %) safe %, collisions and episodes of one run's history."""
+    ret, safe = h["mean_episode_return"], h["safe_fraction"]
+    n = ret.shape[1]
+    k = max(1, n // 20)
+    early = slice(0, max(1, n // 5))
+    with warnings.catch_warnings():  # all-NaN slices: iterations without episodes
+        warnings.simplefilter("ignore", RuntimeWarning)
+        safe_w = episode_window(h, "safe_fraction")
+        return {
+            "env": env, "policy": policy, "seeds": ret.shape[0], "iterations": n,
+            "final_reward": float(nanmean(ret[:, -k:])),
+            "final_reward_std": float(np.nanstd(nanmean(ret[:, -k:], axis=1))),
+            "min_safe_pct_100ep": float(100 * np.nanmin(nanmean(safe_w, axis=0))),
+            "min_safe_pct_100ep_any_seed": float(100 * np.nanmin(safe_w)),
+            "min_safe_pct_per_iteration_any_seed": float(100 * np.nanmin(safe)),
+            "mean_safe_pct": float(100 * nanmean(safe)),
+            "early_safe_pct": float(100 * nanmean(safe[:, early])),
+            "collisions": round(float(np.nansum((1.0 - safe) * h["episodes"]))),
+            "episodes": int(np.nansum(h["episodes"])),
+        }
+
+
+def _print_rows(summary: dict[str, Any]) -> None:
+    for r in summary["rows"]:
+        print(f"{r['env']:16s} {r['policy']:14s} {r['iterations']:3d} it. | final reward "
+              f"{r['final_reward']:7.1f} ± {r['final_reward_std']:5.1f} | safe % (100-episode "
+              f"window) min {r['min_safe_pct_100ep']:5.1f}, any seed "
+              f"{r['min_safe_pct_100ep_any_seed']:5.1f} | mean {r['mean_safe_pct']:5.1f} early "
+              f"{r['early_safe_pct']:5.1f} | collisions {r['collisions']}/{r['episodes']}")
+    if "env3_rmp_residual_over_nn" in summary:
+        print(f"env3 final reward rmp_residual / nn = {summary['env3_rmp_residual_over_nn']:.2f}")
+
+
+def plot_all(runs_dir: str, figures: str, smooth: int) -> dict[str, Any]:
+    """The ``plot`` stage: figures, ``ch6_summary.csv``/``.json`` and the printed table;
+    returns the summary. Raises ``FileNotFoundError`` when no run has a metrics.csv."""
+    runs = load_runs(runs_dir)
+    if not runs:
+        raise FileNotFoundError(f"no runs with metrics.csv under {runs_dir}")
+    os.makedirs(figures, exist_ok=True)
+    plot_figures(runs, figures, smooth)
+    rows = [summary_row(env, policy, h) for (env, policy), h in sorted(runs.items())]
+    with open(os.path.join(figures, "ch6_summary.csv"), "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    summary: dict[str, Any] = {"rows": rows}
+    by = {(r["env"], r["policy"]): r for r in rows}
+    e3 = ("three_link/env3", "rmp_residual"), ("three_link/env3", "nn")
+    if all(k in by for k in e3):
+        summary["env3_rmp_residual_over_nn"] = (by[e3[0]]["final_reward"]
+                                                / max(by[e3[1]]["final_reward"], 1e-9))
+    with open(os.path.join(figures, "ch6_summary.json"), "w") as f:
+        json.dump(summary, f, indent=1)
+    _print_rows(summary)
+    return summary
+
+
+def reproduce(stage: str, runs: str, figures: str, smooth: int = 100,
+              **train: Any) -> dict[str, Any] | None:
+    """Run the ``train`` and/or ``plot`` stage (``stage``: ``all``, ``train`` or ``plot``);
+    ``train`` holds :func:`train_all`'s settings. Returns the summary of the plot stage."""
+    if stage in ("all", "train"):
+        train_all(runs, **train)
+    if stage in ("all", "plot"):
+        return plot_all(runs, figures, smooth)
+    return None
+
+
+__all__ = ["COLORS", "ENVS", "LABELS", "POLICIES", "THREE_LINK", "load_runs", "plot_all",
+           "plot_figures", "reproduce", "run_dir", "summary_row", "train_all"]

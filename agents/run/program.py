@@ -1,0 +1,102 @@
+"""The compiled program of a training run: the PPO trainer of a :class:`agents.run.spec.RunSpec`
+with ``init`` and ``run`` vmapped over seeds and jitted, compiled ahead of time per chunk length
+(cached, so runs that differ only in length, seeds or logging share compiled code), and a
+timing split of one iteration."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh
+
+from agents.ppo import PPOConfig, Trainer, TrainState, make_env_and_policy, make_trainer
+from agents.run.spec import RunSpec
+
+
+@dataclasses.dataclass
+class Program:
+    """A trainer with ``init(keys)`` and ``run(state, n)`` vmapped over seeds and jitted, plus
+    the ahead-of-time compiled chunk executables (one per chunk length)."""
+
+    trainer: Trainer
+    init: Callable
+    run: Callable
+    executables: dict[int, Any] = dataclasses.field(default_factory=dict)
+    compile_seconds: float = 0.0
+
+    def executable(self, state: TrainState, n: int) -> Any:
+        """The compiled ``run(·, n)`` (compiled on first use; the time is added to
+        ``compile_seconds``)."""
+        if n not in self.executables:
+            t0 = time.perf_counter()
+            self.executables[n] = self.run.lower(state, n).compile()
+            self.compile_seconds += time.perf_counter() - t0
+        return self.executables[n]
+
+
+@functools.lru_cache(maxsize=8)
+def _program(env: str, policy: str, ppo: PPOConfig, mesh: Mesh | None) -> Program:
+    env_obj, module = make_env_and_policy(env, policy)
+    trainer = make_trainer(env_obj, module, ppo, mesh)
+    init = jax.jit(jax.vmap(trainer.init))
+    run = jax.jit(jax.vmap(trainer.run, in_axes=(0, None)), static_argnums=1)
+    return Program(trainer, init, run)
+
+
+def build(spec: RunSpec, mesh: Mesh | None = None) -> Program:
+    """The :class:`Program` of ``spec`` (cached: runs that differ only in length, seeds or
+    logging share compiled code)."""
+    return _program(spec.env, spec.policy, dataclasses.replace(spec.ppo, total_iterations=1),
+                    mesh)
+
+
+def seed_keys(seeds: tuple[int, ...]) -> jax.Array:
+    """Raw keys ``(num_seeds, 2)`` for the seeds."""
+    return jnp.stack([jax.random.PRNGKey(s) for s in seeds])
+
+
+def _median_seconds(fn: Callable[[], Any], repeats: int) -> float:
+    """Median wall time of ``fn()`` (blocked) over ``repeats`` calls after one warm-up call."""
+    jax.block_until_ready(fn())
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def profile_iteration(program: Program, state: TrainState, repeats: int = 3) -> dict[str, float]:
+    """Median wall time (s) of one iteration's pieces for all seeds, compiled separately:
+    ``rollout`` (environment + policy sampling, ``rollout_length`` steps), ``policy_forward``
+    (the policy alone — RMP² included — on the rollout's ``rollout_length × num_envs``
+    observations) and ``update`` (GAE + every epoch and minibatch, RMP² backprop included).
+    Does not change ``state``."""
+    trainer = program.trainer
+    n = trainer.config.rollout_length
+    keys = jnp.broadcast_to(jax.random.PRNGKey(0), (state.iteration.shape[0], 2))
+    rollout = jax.jit(jax.vmap(trainer.rollout))
+    update = jax.jit(jax.vmap(trainer.update))
+    _, tr = rollout(state, keys)
+
+    def forward(ts, obs):
+        def body(c, o):
+            return c, trainer.policy.apply(ts.params["policy"], o, trainer.policy_norm(ts))[0]
+
+        return jax.lax.scan(body, 0, obs)[1]
+
+    forward = jax.jit(jax.vmap(forward))
+    pieces = {"rollout": lambda: rollout(state, keys),
+              "policy_forward": lambda: forward(state, tr.obs[:, :n]),
+              "update": lambda: update(state, tr, keys)}
+    return {name: _median_seconds(fn, repeats) for name, fn in pieces.items()}
+
+
+__all__ = ["Program", "build", "profile_iteration", "seed_keys"]
