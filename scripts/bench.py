@@ -53,6 +53,7 @@ from agents.bench.run import (
     fill_defaults,
     run_benchmark,
 )
+from offline.experiment.bench import measure as measure_offline
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -121,7 +122,8 @@ def main(argv: Sequence[str] | None = None) -> dict:
     settings = parse_args(argv)
     command = " ".join(["python scripts/bench.py", *(argv if argv is not None
                                                      else sys.argv[1:])])
-    return run_benchmark(settings, command, ROOT / "results" / "rmp2_evaluation")
+    return run_benchmark(settings, command, ROOT / "results" / "rmp2_evaluation",
+                         offline_measure=measure_offline)
 
 
 if __name__ == "__main__":

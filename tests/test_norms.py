@@ -1,10 +1,11 @@
 """The house rules of the layout, checked on the source tree (docs/design.md §6).
 
 Package modules ≤ 400 lines, scripts ≤ 200, functions ≤ 80 (a jitted trainer closure nested in a
-``make_*train*`` factory ≤ 200); no import cycles; no project import inside a function unless the
-line carries ``# lazy: <why>``; tests and scripts never import ``scripts``; environments are built
-only through ``envs.make``; configs validate through ``mjxrmp/config.py`` alone; the project cites
-only its own docs; ``results/`` holds data only; the README and the benchmark page stay short.
+``make_*train*`` factory ≤ 200); packages import only the layers below them and no import cycles;
+no project import inside a function unless the line carries ``# lazy: <why>``; tests and
+scripts never import ``scripts``; environments are built only through ``envs.make``; configs
+validate through ``mjxrmp/config.py`` alone; the project cites only its own docs; ``results/``
+holds data only; the README and the benchmark page stay short.
 """
 
 from __future__ import annotations
@@ -121,6 +122,19 @@ def test_no_import_cycles():
         if v not in index:
             visit(v)
     assert not cycles, f"import cycles: {cycles}"
+
+
+def test_packages_import_only_the_layers_below_them():
+    """mjxrmp ← envs ← agents ← offline ← scripts (docs/design.md §1), lazy imports included."""
+    layer = {name: i for i, name in enumerate(PROJECT)}
+    bad = []
+    for path in _files(*PACKAGES):
+        own = layer[path.relative_to(ROOT).parts[0]]
+        for node, names, _ in _imports(ast.parse(path.read_text())):
+            above = sorted({n.split(".")[0] for n in names if layer[n.split(".")[0]] > own})
+            if above:
+                bad.append(f"{path.relative_to(ROOT)}:{node.lineno} imports {above}")
+    assert not bad, "imports against the layering:\n" + "\n".join(bad)
 
 
 def test_function_level_project_imports_carry_the_lazy_marker():

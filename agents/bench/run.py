@@ -6,7 +6,9 @@ every row so that a run cut short still leaves its numbers.
 robot the RMP² single-state latency and batched throughput at ``batches``, the same for the
 naive baseline at ``naive_batches``; control steps/s of ``envs`` at ``env_batches`` with random
 and RMP² actions; PPO rows (``ppo``: ``ENV:POLICY`` items) over ``ppo_devices``; offline rows
-(``offline``: learner names, :func:`offline.experiment.bench.measure`); float32 vs float64.
+(``offline``: learner names, measured by the ``offline_measure`` the caller passes — the
+script passes :func:`offline.experiment.bench.measure`, which this package cannot import:
+docs/design.md §1); float32 vs float64.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import datetime
 import functools
 import json
 import sys
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +40,6 @@ from agents.bench.table import (
     summarise,
 )
 from agents.bench.throughput import measure_env, measure_ppo
-from offline.experiment.bench import measure as measure_offline
 
 GPU_BATCHES = (1, 64, 1024, 4096, 16384, 65536, 262144)
 CPU_BATCHES = (1, 64, 1024, 4096)
@@ -174,10 +175,15 @@ def _print_report(result: dict) -> None:
               f"{p['median_rel_err']:.1e}, p99 {p['p99_rel_err']:.1e}, max {p['max_rel_err']:.1e}")
 
 
-def run_benchmark(settings: dict[str, Any], command: str, results_dir: Path) -> dict:
+def run_benchmark(settings: dict[str, Any], command: str, results_dir: Path,
+                  offline_measure: Callable[..., dict] | None = None) -> dict:
     """Run the benchmark of ``settings`` (see the module docstring), print the table and the
     summary, write the JSON (``settings["json"]``, default ``results_dir/bench_<device>.json``)
-    after every row and return the result."""
+    after every row and return the result. ``offline_measure(name, seeds, steps, scale=)``
+    measures the offline rows (required when ``settings["offline"]`` names learners)."""
+    if settings.get("offline") and offline_measure is None:
+        raise ValueError(f"settings['offline']={settings['offline']} names learners, but no "
+                         "offline_measure was given to measure them")
     s = fill_defaults(settings)
     if jax.default_backend() == "cpu" and not s["async_dispatch"]:
         # Execute small CPU programs on the calling thread: no hand-off to a worker thread per
@@ -198,7 +204,7 @@ def run_benchmark(settings: dict[str, Any], command: str, results_dir: Path) -> 
         _ppo_rows(s, result, path)
     if s["offline"]:
         chunk = 10_000 if jax.default_backend() == "cpu" else 20_000
-        result["offline"] = [measure_offline(name, s["offline_seeds"], 1000 if s["quick"]
+        result["offline"] = [offline_measure(name, s["offline_seeds"], 1000 if s["quick"]
                                              else chunk, scale=2 if s["quick"] else 8)
                              for name in s["offline"]]
         _write(path, result)

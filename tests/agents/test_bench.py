@@ -10,7 +10,9 @@ import os
 import subprocess
 import sys
 
-from agents.bench.run import fill_defaults
+import pytest
+
+from agents.bench.run import fill_defaults, run_benchmark
 from agents.bench.table import fmt_rate, fmt_time, format_summary, format_table, summarise
 from offline.experiment.bench import run_benchmark as run_offline_benchmark
 
@@ -99,3 +101,9 @@ def test_offline_full_run_in_chunks_reports_progress(tmp_path):
     full = out["rows"][0]["full"]
     assert full["chunk"] == 20 and full["steps"] == 60 and full["metrics_finite"]
     assert 0 < full["compile_s"] < full["wall_s"]
+
+
+def test_offline_rows_need_the_measure_passed_in(tmp_path):
+    """agents cannot import offline (docs/design.md §1): the caller passes the offline measure."""
+    with pytest.raises(ValueError, match="no offline_measure"):
+        run_benchmark({"offline": ["atac"]}, "test", tmp_path)
