@@ -13,7 +13,8 @@ computation runs. The short names below are the public entry points of the READM
 * :mod:`mjxrmp.data` — the LASA and Franka demonstration data sets;
 * :mod:`mjxrmp.studies` — simulation studies of the thesis (Figs 3.2 and 3.3);
 * :mod:`mjxrmp.results` — ``summary.json`` files and the reports rendered from them;
-* :mod:`mjxrmp.config` — frozen parameter dataclasses and the shared config validators.
+* :mod:`mjxrmp.config` — frozen parameter dataclasses and the shared config validators;
+* :mod:`mjxrmp.atomic` — atomic file writes.
 """
 
 from mjxrmp._xla import configure_cpu_flags
@@ -26,6 +27,7 @@ from mjxrmp.core.rmp import RMP, natural  # noqa: E402
 
 __all__ = [
     "RMP",
+    "atomic",
     "config",
     "core",
     "data",

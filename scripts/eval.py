@@ -36,6 +36,7 @@ _xla.configure_cpu_flags()
 from agents.run.checkpoint import IncompatibleCheckpointError  # noqa: E402
 from agents.run.eval_report import evaluate_runs, format_table  # noqa: E402
 from agents.run.evaluation import SETUPS  # noqa: E402
+from mjxrmp.results.summary import write_text  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -77,11 +78,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{b['iteration']} seed {g['seed']} on {g['setup']}, episode 0, return "
               f"{g['return']:.2f}")
     if args.json:
-        os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
-        tmp = args.json + ".tmp"
-        with open(tmp, "w") as f:
-            json.dump(report, f, indent=1, allow_nan=False)
-        os.replace(tmp, args.json)
+        write_text(args.json, json.dumps(report, indent=1, allow_nan=False))
         print(f"wrote {args.json}")
     return 0
 

@@ -23,15 +23,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--root", type=Path, default=ROOT, help="repository root")
     args = parser.parse_args(argv)
     try:
-        stale = stale_files(args.root)
+        rendered = render_all(args.root)
+        stale = stale_files(rendered)
         if args.check:
             for path in stale:
                 print(f"stale: {path.relative_to(args.root)} (run python scripts/report.py)")
             return 1 if stale else 0
-        for path, text in render_all(args.root).items():
-            if path in stale:
-                write_text(path, text)
-                print(f"wrote {path.relative_to(args.root)}")
+        for path in stale:
+            write_text(path, rendered[path])
+            print(f"wrote {path.relative_to(args.root)}")
     except SummaryError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

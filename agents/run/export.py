@@ -38,7 +38,6 @@ import hashlib
 import importlib.metadata
 import json
 import os
-import secrets
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -50,6 +49,7 @@ from jax import export as jax_export
 import envs
 from agents.ppo import KINDS, make_env_and_policy
 from agents.run.loading import deterministic_policy, load_run
+from mjxrmp.atomic import atomic_write
 
 #: Value of the manifest's ``format`` field.
 FORMAT = "mjxrmp-policy-export"
@@ -79,23 +79,6 @@ def _jaxlib_version() -> str:
 def manifest_path(path: str | os.PathLike) -> Path:
     """The manifest that belongs to the blob ``path`` (``.jaxexport`` → ``.json``)."""
     return Path(path).with_suffix(".json")
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same directory and ``os.replace``."""
-    tmp = path.parent / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp"
-    # os.open with 0o666 honours the umask (tempfile.mkstemp would leave the file 0600)
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
 
 
 def _check_args(obs_size, path, metadata, platforms,
@@ -253,8 +236,8 @@ def export_policy(
     manifest = _manifest(exported, blob, path, obs_size, platforms, platform_errors,
                          matmul_precision, metadata)
     path.parent.mkdir(parents=True, exist_ok=True)
-    _atomic_write(path, blob)
-    _atomic_write(manifest_path(path),
+    atomic_write(path, blob)
+    atomic_write(manifest_path(path),
                   (json.dumps(manifest, indent=2, allow_nan=False) + "\n").encode())
     return manifest
 

@@ -124,7 +124,6 @@ def render_all(root: Path) -> dict[Path, str]:
     return out
 
 
-def stale_files(root: Path) -> list[Path]:
-    """The files whose committed text differs from what :func:`render_all` renders."""
-    return [p for p, text in render_all(root).items()
-            if not p.exists() or p.read_text() != text]
+def stale_files(rendered: dict[Path, str]) -> list[Path]:
+    """The files of ``rendered`` (:func:`render_all`) whose text on disk differs from it."""
+    return [p for p, text in rendered.items() if not p.exists() or p.read_text() != text]

@@ -21,10 +21,11 @@ import datetime
 import json
 import os
 import platform
-import tempfile
 from importlib import metadata
 from pathlib import Path
 from typing import Any
+
+from mjxrmp.atomic import atomic_write
 
 REQUIRED = ("study", "title", "report", "runs", "headline", "deviations")
 RUN_FIELDS = ("command", "device", "versions", "date")
@@ -113,19 +114,11 @@ def write_summary(path: str | os.PathLike, data: dict) -> Path:
 
 
 def write_text(path: str | os.PathLike, text: str) -> Path:
-    """Write ``text`` to ``path`` atomically (temporary file, fsync, rename) and verify it."""
+    """Write ``text`` to ``path`` atomically (:func:`mjxrmp.atomic.atomic_write`), creating its
+    folder, and verify it."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    atomic_write(path, text.encode())
     if path.read_text() != text:
         raise OSError(f"{path}: the written file differs from what was written")
     return path
