@@ -7,7 +7,16 @@
   ``[reward_min, reward_max]`` (σ 0.1, δ 0.05, λ 1e-5, ``[−5, 1]``: :class:`RewardParams`);
 * :func:`episode_info` / :func:`accumulate_episode` — the per-episode accumulators in
   ``state.info`` (``episode_return``, ``episode_length``, ``episode_collided`` and, where
-  tracked, ``episode_nonfinite``);
+  tracked, ``episode_nonfinite``). They restart with every episode, also under brax's
+  ``AutoResetWrapper``, which restores only the physics state and the observation and keeps
+  ``state.info``: brax zeroes its ``EpisodeWrapper`` counter ``info["steps"]`` of a finished
+  episode before the next step, so a step that sees ``steps == 0`` while its ``episode_length``
+  has reached the finished episode's length as brax counted it
+  (``info["episode_metrics"]["length"] > 0``, updated only after the step) zeroes the
+  accumulators first. The comparison keeps the rule right with ``action_repeat > 1`` (brax's
+  counters move once per repeated step). It never fires under
+  :class:`envs.wrappers.AutoResetWrapper` (which replaces the accumulators by a reset's zeros)
+  nor without brax's ``EpisodeWrapper``;
 * :func:`layout` — named slices of an observation vector from ``(name, size)`` pairs;
 * :func:`sample_first_valid` — bounded rejection sampling of a scene (:mod:`envs.samplers`).
 """
@@ -23,6 +32,7 @@ import jax.numpy as jnp
 from envs.samplers import first_valid, take
 
 __all__ = [
+    "EPISODE_ACCUMULATORS",
     "RewardParams",
     "accumulate_episode",
     "check_action",
@@ -82,18 +92,37 @@ def reach_reward(goal_distance: jax.Array, obstacle_distances: jax.Array, active
     return jnp.clip(r, params.reward_min, params.reward_max)
 
 
+#: The per-episode accumulators :func:`episode_info` puts in ``state.info``.
+EPISODE_ACCUMULATORS = ("episode_return", "episode_length", "episode_collided",
+                        "episode_nonfinite")
+
+
 def episode_info(track_nonfinite: bool = True) -> dict[str, jax.Array]:
     """Zeroed per-episode accumulators for ``state.info`` at reset."""
-    keys = ["episode_return", "episode_length", "episode_collided"]
-    if track_nonfinite:
-        keys.append("episode_nonfinite")
+    keys = EPISODE_ACCUMULATORS if track_nonfinite else EPISODE_ACCUMULATORS[:3]
     return {k: jnp.zeros((), jnp.float32) for k in keys}
+
+
+def _first_step_after_brax_reset(info: dict) -> jax.Array | None:
+    """True at the first step of an episode that brax's ``AutoResetWrapper`` restarted (the
+    accumulators still hold the finished episode: module docstring); None without brax's
+    ``EpisodeWrapper`` counters."""
+    if "steps" not in info or "length" not in info.get("episode_metrics", {}):
+        return None
+    counted = info["episode_metrics"]["length"]
+    return (info["steps"] == 0) & (counted > 0) & (info["episode_length"] >= counted)
 
 
 def accumulate_episode(info: dict, reward: jax.Array, collision: jax.Array,
                        nonfinite: jax.Array) -> dict:
-    """``info`` with one control step added to the per-episode accumulators (a new dict)."""
+    """``info`` with one control step added to the per-episode accumulators (a new dict); at
+    the first step of an episode restarted by brax's auto-reset they restart from zero."""
+    restart = _first_step_after_brax_reset(info)
     info = dict(info)
+    if restart is not None:
+        for k in EPISODE_ACCUMULATORS:
+            if k in info:
+                info[k] = jnp.where(restart, jnp.zeros_like(info[k]), info[k])
     info["episode_return"] = info["episode_return"] + reward
     info["episode_length"] = info["episode_length"] + 1.0
     info["episode_collided"] = jnp.maximum(info["episode_collided"], collision)

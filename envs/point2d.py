@@ -11,6 +11,10 @@ For RMP²-CLF studies (thesis §3.2.6–3.2.7) and fast learner tests. brax ``En
 * reward :func:`envs.base.reach_reward` with the acceleration as the effort
   (``exp(−½‖x−g‖²/σ²) − Σ_i max(0, 1 − d_i/δ) − λ‖a‖²`` clipped to [−5, 1], σ 0.1, δ 0.05,
   λ 1e-5); done on collision (``d_i < 0``, point radius 0) or a non-finite state;
+* ``step`` keeps any metric a wrapper added (brax's ``EvalWrapper`` adds ``reward``); all state
+  lives in ``pipeline_state`` or stays fixed within an episode (goal, obstacles), so brax's own
+  ``AutoResetWrapper`` restarts an episode correctly (the accumulators restart as
+  :func:`envs.base.accumulate_episode` describes);
 * observation ``[x, ẋ, g − x, {v_i}, {o_i}]`` (``v_i`` from the circle's surface to the point,
   ``o_i`` = centre and radius): ``6 + 5·num_obstacles`` entries.
 
@@ -155,7 +159,7 @@ class PointRobot2D(Env):
         xd = state.pipeline_state.xd + a * self.dt
         x = state.pipeline_state.x + xd * self.dt
         d = self.distances(x, obstacles)
-        metrics = self._goal_metrics(x, goal)
+        metrics = {**state.metrics, **self._goal_metrics(x, goal)}  # keeps wrappers' metrics
         reward = reach_reward(metrics["goal_distance"], d, obstacles.active > 0, a,
                               self.reward_params)
         finite = jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(xd))

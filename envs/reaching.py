@@ -5,7 +5,7 @@ Thesis §6.2–6.3, docs/design.md §2.2 and §4.3. The robots subclass it:
 
 **Control (acceleration actions through PD tracking).** The action is a joint acceleration,
 NaNs replaced by 0 and clipped to ``±action_limit`` (1 by default). The environment keeps a
-virtual joint velocity ``q̇_v`` (``state.info["qd_virtual"]``). In every physics substep
+virtual joint velocity ``q̇_v`` (:meth:`ReachEnv.virtual_velocity`). In every physics substep
 (``dt = 1/240`` s, 3 substeps per 80 Hz control step), as in the original implementation's
 "velocity open loop" mode::
 
@@ -16,6 +16,14 @@ virtual joint velocity ``q̇_v`` (``state.info["qd_virtual"]``). In every physic
 
 Like the original, the velocity the policy and the observation see is the virtual velocity
 ``q̇_v`` (``measured_velocity=True`` switches the observation to MJX's ``qvel``).
+
+**All control state lives in the physics state.** ``q̇_v`` is not stored separately: after a
+reset (``ctrl = concat(q0, q̇0)``) and after every step (the last substep's ``ctrl``) it equals
+the velocity half ``pipeline_state.ctrl[dof:]`` bit for bit (``ctrl`` is float32), so
+:meth:`ReachEnv.virtual_velocity` reads it there. brax's ``AutoResetWrapper``, which restores
+only ``pipeline_state`` and ``obs``, therefore restarts an episode with the matching ``q̇_v``;
+goal and obstacles (``state.info``) never change within an episode, so they match the restored
+first state too (docs/design.md §5.3).
 
 **Obstacles are not in the MJX model.** Distances, collision detection, the reward's obstacle
 term and the observation vectors come from analytic JAX geometry on the robot's control points
@@ -33,9 +41,11 @@ applied by the episode wrapper (:func:`envs.wrappers.wrap`).
 **Per-step metrics** (``state.metrics``, summed over an episode by brax's ``EpisodeWrapper``):
 ``goal_distance``, ``success`` (goal distance < 0.05 m), ``collision``, ``nonfinite``,
 ``min_obstacle_distance``, ``tracking_error`` (max-abs ``qvel − q̇_v`` after the step).
-**Per-episode accumulators** (``state.info``, reset with each episode): ``episode_return``,
-``episode_length``, ``episode_collided``, ``episode_nonfinite``; the final goal distance and
-success are the last step's metrics.
+``step`` keeps any other metric a wrapper added (brax's ``EvalWrapper`` adds ``reward``).
+**Per-episode accumulators** (``state.info``, reset with each episode, also by brax's
+auto-reset: :func:`envs.base.accumulate_episode`): ``episode_return``, ``episode_length``,
+``episode_collided``, ``episode_nonfinite``; the final goal distance and success are the last
+step's metrics.
 """
 
 from __future__ import annotations
@@ -261,11 +271,16 @@ class ReachEnv(Env):
         obs = jnp.concatenate(parts)
         return jnp.where(jnp.isfinite(obs), obs, 0.0)
 
-    @staticmethod
-    def policy_inputs(state: State):
+    def virtual_velocity(self, state: State) -> jax.Array:
+        """The virtual joint velocity ``q̇_v`` (module docstring): the velocity-servo half of
+        ``pipeline_state.ctrl`` (leading batch axes allowed)."""
+        return state.pipeline_state.ctrl[..., self.robot.dof:]
+
+    def policy_inputs(self, state: State):
         """``(q, q̇, goal, obstacles)`` as an RMP² policy sees them (``q̇`` = virtual velocity)."""
         info = state.info
-        return state.pipeline_state.qpos, info["qd_virtual"], info["goal"], info["obstacles"]
+        return (state.pipeline_state.qpos, self.virtual_velocity(state), info["goal"],
+                info["obstacles"])
 
     # ------------------------------------------------------------------ reset / step
     def _goal_metrics(self, q: jax.Array, goal: jax.Array) -> dict[str, jax.Array]:
@@ -285,7 +300,7 @@ class ReachEnv(Env):
         metrics = {**self._goal_metrics(q0, goal), "collision": z, "nonfinite": z,
                    "min_obstacle_distance": self._robot_clearance(q0, obstacles),
                    "tracking_error": z}
-        info = {"rng": k_next, "goal": goal, "obstacles": obstacles, "qd_virtual": qd0,
+        info = {"rng": k_next, "goal": goal, "obstacles": obstacles,
                 "sampler_ok": ok.astype(jnp.float32), **episode_info()}
         return State(data, obs, z, z, metrics, info)
 
@@ -318,12 +333,11 @@ class ReachEnv(Env):
     def step(self, state: State, action: jax.Array) -> State:
         """One control step: ``substeps`` physics substeps of the PD scheme (module docstring)."""
         check_action(action, self.action_size)
-        info = dict(state.info)
-        goal, obstacles = info["goal"], info["obstacles"]
+        goal, obstacles = state.info["goal"], state.info["obstacles"]
         a = clean_action(action, self.action_limit).astype(jnp.float32)
         (data, qv), (rs, cols) = jax.lax.scan(
             self._substep(a, goal, obstacles),
-            (state.pipeline_state, info["qd_virtual"]),
+            (state.pipeline_state, self.virtual_velocity(state)),
             None,
             length=self.substeps,
         )
@@ -340,12 +354,11 @@ class ReachEnv(Env):
         obs = self.observe(q, data.qvel if self.measured_velocity else qv, goal, obstacles)
         reward = jnp.where(finite & jnp.isfinite(reward), reward, self.reward_min)
         nonfinite = (~finite).astype(jnp.float32)
-        metrics = {**self._goal_metrics(q, goal), "collision": collided.astype(jnp.float32),
-                   "nonfinite": nonfinite,
+        metrics = {**state.metrics, **self._goal_metrics(q, goal),
+                   "collision": collided.astype(jnp.float32), "nonfinite": nonfinite,
                    "min_obstacle_distance": self._robot_clearance(q, obstacles),
                    "tracking_error": jnp.max(jnp.abs(data.qvel - qv))}
-        info["qd_virtual"] = qv
-        info = accumulate_episode(info, reward, metrics["collision"], nonfinite)
+        info = accumulate_episode(state.info, reward, metrics["collision"], nonfinite)
         return state.replace(pipeline_state=data, obs=obs, reward=reward,
                              done=(collided | ~finite).astype(jnp.float32), metrics=metrics,
                              info=info)

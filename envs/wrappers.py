@@ -1,13 +1,18 @@
 """Wrappers: an auto-reset that re-samples goal and obstacles, the training ``wrap`` and RMP²
 inside the environment (:class:`RMPInEnv`).
 
-brax's ``AutoResetWrapper`` restores a cached first ``pipeline_state``/``obs`` and keeps
-``state.info`` — a reaching episode would then restart with the *previous* goal and obstacles
-(docs/design.md §5.3). :class:`AutoResetWrapper` here instead calls ``reset`` with the fresh key the
-environment stored in ``state.info["rng"]`` at its last reset, so every reset inside the compiled
-graph samples a new scene. Use :func:`wrap` (vmap → episode limit → this auto-reset) for
-training; brax's own ``brax.envs.wrappers.training.wrap`` also runs the environments unchanged,
-but re-uses the first scene of each batch slot.
+brax's own ``AutoResetWrapper`` restores each batch slot's cached *first* ``pipeline_state`` and
+``obs`` and keeps ``state.info``. The environments are built for that: everything a step reads
+lives in ``pipeline_state`` (the virtual velocity is the velocity half of ``ctrl``,
+:meth:`envs.reaching.ReachEnv.virtual_velocity`) or is fixed for the episode in ``state.info``
+(goal, obstacles), and the per-episode accumulators restart by themselves
+(:func:`envs.base.accumulate_episode`); so brax restarts a slot's first episode exactly, scene
+included (docs/design.md §5.3). :class:`AutoResetWrapper` here instead calls ``reset`` with the
+fresh key the environment stored in ``state.info["rng"]`` at its last reset, so every reset
+inside the compiled graph samples a *new* scene. Use :func:`wrap` (vmap → episode limit → this
+auto-reset) for training; brax's ``brax.envs.wrappers.training.wrap``, its ``EvalWrapper`` and
+its PPO trainer (:mod:`agents.brax_compat`) also run the environments correctly, re-using the
+first scene of each batch slot.
 """
 
 from __future__ import annotations
@@ -39,8 +44,8 @@ class AutoResetWrapper(Wrapper):
 
     Apply it outermost (after the vmap and episode wrappers). At each step every finished
     episode gets ``env.reset(state.info["rng"])``: pipeline state, observation and the
-    environment's own ``info`` entries (goal, obstacles, virtual velocity, key, per-episode
-    accumulators) are replaced; brax's episode bookkeeping (:data:`EPISODE_KEYS`), ``reward``,
+    environment's own ``info`` entries (goal, obstacles, key, per-episode accumulators) are
+    replaced; brax's episode bookkeeping (:data:`EPISODE_KEYS`), ``reward``,
     ``done`` and ``metrics`` of the terminal step are kept, as in brax.
     """
 

@@ -14,7 +14,8 @@ computation runs. The short names below are the public entry points of the READM
 * :mod:`mjxrmp.studies` — simulation studies of the thesis (Figs 3.2 and 3.3);
 * :mod:`mjxrmp.results` — ``summary.json`` files and the reports rendered from them;
 * :mod:`mjxrmp.config` — frozen parameter dataclasses and the shared config validators;
-* :mod:`mjxrmp.atomic` — atomic file writes.
+* :mod:`mjxrmp.atomic` — atomic file writes;
+* :mod:`mjxrmp.divergence` — the divergence guards every trainer runs (``DivergenceError``).
 """
 
 from mjxrmp._xla import configure_cpu_flags
@@ -31,6 +32,7 @@ __all__ = [
     "config",
     "core",
     "data",
+    "divergence",
     "geometry",
     "learned",
     "leaves",

@@ -3,18 +3,26 @@ validators every config in the project uses (docs/design.md §6).
 
 Leaf parameters are frozen (hashable, usable as static configuration) and at the same time JAX
 pytrees, so a loss can be differentiated with respect to them. Construction validates concrete
-values: a negative gain or length scale raises a ``ValueError`` naming the field; fields marked
-``signed`` (joint positions, limits) accept any sign.
+values (Python and numpy numbers, concrete ``jax.Array``; traced values pass, since parameters
+are differentiated): a non-numeric, non-finite or negative value raises a ``ValueError`` naming
+the field; fields marked ``positive`` (a formula divides by them) also refuse zero; fields
+marked ``signed`` (joint positions, limits) accept any sign.
+
+:func:`parse_field` and :func:`parse_assignments` turn command-line text (``--set NAME=VALUE``)
+into a field's value by the field's declared type.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import types
+import typing
 from collections.abc import Iterable, Sequence
 from typing import Any, TypeVar
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 T = TypeVar("T")
@@ -27,24 +35,53 @@ def signed(default: Any) -> Any:
     return dataclasses.field(default=default, metadata={"signed": True})
 
 
-def _is_concrete(value: Any) -> bool:
-    if isinstance(value, (int, float, np.ndarray, np.generic)):
-        return True
-    if isinstance(value, tuple):
-        return all(isinstance(v, (int, float, np.generic)) for v in value)
-    return False
+def positive(default: Any) -> Any:
+    """A dataclass field that must be ``> 0`` because a formula divides by it (length scales,
+    regularising epsilons): zero is refused as well as negative values."""
+    return dataclasses.field(default=default, metadata={"positive": True})
+
+
+def _is_traced(value: Any) -> bool:
+    items = value if isinstance(value, tuple | list) else (value,)
+    return any(isinstance(v, jax.core.Tracer) for v in items)
+
+
+def _shown(value: Any, arr: np.ndarray, bad: np.ndarray) -> str:
+    """``value`` for a one-line message: itself when scalar, else its first bad entry."""
+    if arr.ndim == 0:
+        return repr(value) if type(value) in (int, float) else repr(arr.item())
+    index = tuple(int(i) for i in np.argwhere(bad)[0])
+    return f"{arr[index].item()!r} at index {index}"
+
+
+def _numbers(name: str, value: Any) -> np.ndarray:
+    """``value`` as a float64 array, or a ``ValueError`` naming ``name`` if it is not numeric."""
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError):
+        arr = np.asarray(None)
+    if arr.dtype == np.bool_ or not jnp.issubdtype(arr.dtype, jnp.number):
+        raise ValueError(f"{name} must be a number or an array of numbers, got {value!r}")
+    return arr.astype(np.float64)
 
 
 def _validate(obj: Any) -> None:
     for f in dataclasses.fields(obj):
         value = getattr(obj, f.name)
-        if f.metadata.get("signed") or not _is_concrete(value):
+        if _is_traced(value):
             continue
-        arr = np.asarray(value, dtype=np.float64)
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{type(obj).__name__}.{f.name} must be finite, got {value!r}")
+        name = f"{type(obj).__name__}.{f.name}"
+        arr = _numbers(name, value)
+        bad = ~np.isfinite(arr)
+        if np.any(bad):
+            raise ValueError(f"{name} must be finite, got {_shown(value, arr, bad)}")
+        if f.metadata.get("signed"):
+            continue
+        if f.metadata.get("positive") and np.any(arr <= 0):
+            raise ValueError(f"{name} must be >= 0 and non-zero (a formula divides by it), got "
+                             f"{_shown(value, arr, arr <= 0)}")
         if np.any(arr < 0):
-            raise ValueError(f"{type(obj).__name__}.{f.name} must be >= 0, got {value!r}")
+            raise ValueError(f"{name} must be >= 0, got {_shown(value, arr, arr < 0)}")
 
 
 def param_dataclass(cls: type[T]) -> type[T]:
@@ -159,3 +196,98 @@ def check_parts(config: Any, **parts: type) -> None:
         if not isinstance(value, cls):
             raise ValueError(f"{type(config).__name__}.{name} must be a {cls.__name__}, got "
                              f"{type(value).__name__}")
+
+
+# --------------------------------------------------------------------------------------------
+# Command-line text → field values, by the field's declared type (``--set NAME=VALUE``).
+
+_TRUE, _FALSE = ("true", "1"), ("false", "0")
+
+
+def _members(tp: Any) -> tuple[Any, ...] | None:
+    """The member types of a union annotation (``X | None``, ``Optional[X]``), else ``None``."""
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        return typing.get_args(tp)
+    return None
+
+
+def _describe(tp: Any) -> str:
+    """What text a field of type ``tp`` accepts, for error messages."""
+    members, args = _members(tp), typing.get_args(tp)
+    if members is not None:
+        kinds = [_describe(m) for m in members if m is not type(None)]
+        return " or ".join(kinds + (["none"] if type(None) in members else []))
+    if typing.get_origin(tp) is typing.Literal:
+        return f"one of {list(args)}"
+    if typing.get_origin(tp) is tuple:
+        if args[-1:] == (Ellipsis,):
+            return f"comma-separated values, each {_describe(args[0])}"
+        return f"{len(args)} comma-separated values ({', '.join(map(_describe, args))})"
+    return {bool: "a boolean (true, false, 1 or 0)", int: "an integer", float: "a number",
+            str: "a string"}.get(tp, f"a {getattr(tp, '__name__', tp)} (not settable from text)")
+
+
+def _parse_text(tp: Any, text: str) -> Any:
+    """``text`` as a value of type ``tp``; a bare ``ValueError`` when it is not one."""
+    members, args = _members(tp), typing.get_args(tp)
+    if members is not None:
+        if type(None) in members and text.strip().lower() == "none":
+            return None
+        for member in (m for m in members if m is not type(None)):
+            try:
+                return _parse_text(member, text)
+            except ValueError:
+                continue
+        raise ValueError
+    if typing.get_origin(tp) is typing.Literal:
+        matches = [c for c in args if str(c) == text]
+        if not matches:
+            raise ValueError
+        return matches[0]
+    if typing.get_origin(tp) is tuple:
+        items = text.split(",") if text.strip() else []
+        if args[-1:] == (Ellipsis,):
+            return tuple(_parse_text(args[0], t) for t in items)
+        if len(items) != len(args):
+            raise ValueError
+        return tuple(_parse_text(a, t) for a, t in zip(args, items, strict=True))
+    if tp is bool:
+        word = text.strip().lower()
+        if word not in _TRUE + _FALSE:
+            raise ValueError
+        return word in _TRUE
+    if tp in (int, float, str):
+        return tp(text)
+    raise ValueError
+
+
+def parse_field(cls: type, name: str, text: str) -> Any:
+    """``text`` parsed by the declared type of dataclass field ``cls.name`` (resolved with
+    :func:`typing.get_type_hints`): ``str``, ``int``, ``float``, ``bool`` (``true``/``false``/
+    ``1``/``0``, any case), ``X | None`` (``none``), ``Literal[...]`` and tuples
+    (comma-separated; empty text is the empty tuple). Raises a ``ValueError`` naming the field
+    and the expected type."""
+    hints = typing.get_type_hints(cls)
+    fields = sorted(f.name for f in dataclasses.fields(cls))
+    if name not in fields:
+        raise ValueError(f"unknown {cls.__name__} field {name!r}; valid fields are {fields}")
+    tp = hints[name]
+    try:
+        return _parse_text(tp, text)
+    except ValueError:
+        raise ValueError(f"{cls.__name__}.{name} expects {_describe(tp)}, got {text!r}") from None
+
+
+def parse_assignments(cls: type, items: Sequence[str], option: str = "--set") -> dict[str, Any]:
+    """``["name=value", …]`` → ``{name: value}`` typed by :func:`parse_field`; errors start
+    with ``option`` and the offending item."""
+    out: dict[str, Any] = {}
+    for item in items:
+        if "=" not in item:
+            raise ValueError(f"{option} expects NAME=VALUE, got {item!r}")
+        name, text = item.split("=", 1)
+        try:
+            out[name] = parse_field(cls, name, text)
+        except ValueError as e:
+            raise ValueError(f"{option} {item}: {e}") from None
+    return out

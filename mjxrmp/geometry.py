@@ -6,6 +6,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from mjxrmp.leaves.hand_designed import safe_norm, smooth_norm
 
@@ -27,13 +28,21 @@ class Obstacles(NamedTuple):
 
 
 def make_obstacles(center, radius, active=None) -> Obstacles:
-    """Build :class:`Obstacles`, checking shapes; ``active`` defaults to all ones."""
+    """Build :class:`Obstacles`, checking shapes and (when concrete, not traced) that every radius
+    is finite and ``>= 0``; ``active`` defaults to all ones."""
     center = jnp.asarray(center)
     radius = jnp.asarray(radius, dtype=center.dtype)
     if center.ndim != 2:
         raise ValueError(f"center must have shape (O, dim), got {center.shape}")
     if radius.shape != center.shape[:1]:
         raise ValueError(f"radius must have shape ({center.shape[0]},), got {radius.shape}")
+    if not isinstance(radius, jax.core.Tracer):
+        r = np.asarray(radius)
+        bad = ~(np.isfinite(r) & (r >= 0))
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise ValueError(f"radius must be finite and >= 0, got radius[{i}] = "
+                             f"{float(r[i])!r}")
     if active is None:
         active = jnp.ones_like(radius)
     active = jnp.asarray(active, dtype=center.dtype)

@@ -18,6 +18,10 @@ policy runs only on setups whose observations it can read (3-link ``env1`` has s
 success %, safe %, final goal distance) and, with ``--json``, every number: per training seed
 and aggregated, the groups with their compile and run seconds. ``--gif`` renders episode 0 of
 the best row (highest mean return; its best seed).
+
+**Refusals.** ``latest``/``all`` skip corrupt checkpoints with a one-line warning naming them; a
+corrupt checkpoint named by iteration, or one whose parameters hold NaN/inf (a diverged run),
+ends the script with a one-line error and exit status 2: a diverged policy is never reported.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ Usage::
 
     python scripts/export.py --checkpoint runs/three_link-env3_rmp_residual \\
         --out exported/policy.jaxexport [--step N] [--train-seed-index 0] \\
-        [--platforms cpu cuda] [--matmul-precision highest]
+        [--platforms cpu cuda] [--matmul-precision highest] [--force]
     python scripts/export.py --env three_link/env3 --policy rmp_residual \\
         --out exported/untrained.jaxexport [--seed 0]
 
@@ -13,6 +13,10 @@ directory written by ``scripts/train.py``, one training seed, with its observati
 baked in (:func:`agents.run.loading.deterministic_policy`). The second exports a freshly initialised
 policy of that kind (``params = module.init(PRNGKey(seed), zeros(obs_size))``). The export
 itself is :func:`agents.run.export.export_run`. Load the result with ``scripts/load_policy.py``.
+
+An existing ``--out`` (or its ``.json`` manifest) is not overwritten without ``--force``; a
+corrupt checkpoint (the newest intact one is used unless ``--step`` names it) and NaN/inf
+parameters are refused with a one-line error (exit status 2).
 """
 
 from __future__ import annotations
@@ -49,6 +53,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="platforms to lower for (default: cpu cuda)")
     parser.add_argument("--matmul-precision", choices=MATMUL_PRECISIONS, default=None,
                         help="bake this float32 matmul precision in (default: the backend's)")
+    parser.add_argument("--force", action="store_true",
+                        help="overwrite an existing --out file and its .json manifest")
     args = parser.parse_args(argv)
     if args.checkpoint is not None and (args.env is not None or args.policy is not None):
         parser.error("--env/--policy come from the run directory with --checkpoint")
@@ -58,8 +64,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         manifest = export_run(args.out, args.checkpoint, args.step, args.train_seed_index,
                               args.env, args.policy, args.seed, platforms=args.platforms,
-                              matmul_precision=args.matmul_precision)
-    except (FileNotFoundError, ValueError, IndexError) as e:
+                              matmul_precision=args.matmul_precision, force=args.force)
+    except (FileNotFoundError, FileExistsError, ValueError, IndexError) as e:
         parser.error(str(e))
     print(f"wrote {args.out} ({manifest['size_bytes']} bytes, sha256 {manifest['sha256'][:12]}…)"
           f" and {args.out.with_suffix('.json')}")

@@ -16,7 +16,9 @@ Writes ``metrics.json`` (per task and strategy: per-fold errors per control poin
 counts, training time and final losses; the settings) and ``table.csv`` to ``--out``, and the
 figures ``lfd_franka_<task>.png`` (demonstrated vs reproduced control-point triangles and
 centre paths, 3-D, as Figs 5.1/5.4) and ``lfd_franka_errors.png`` (box plots of the errors, the
-success rates and the corridor excursions per strategy, as Fig 5.7) to ``--figures``.
+success rates and the corridor excursions per strategy, as Fig 5.7) to ``--figures``. A training
+loss or parameter that turns non-finite stops the script with exit status 3 and one line naming
+the strategy, the stage's iteration and the run; nothing is written.
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ from agents.lfd.figures import plot_franka_errors, plot_franka_task  # noqa: E40
 from agents.lfd.franka_eval import compare_strategies, table_lines  # noqa: E402
 from agents.lfd.franka_scenario import FrankaEvalConfig  # noqa: E402
 from mjxrmp.data import franka_demos  # noqa: E402
+from mjxrmp.divergence import EXIT_DIVERGED, DivergenceError  # noqa: E402
 
 
 def parse_args(argv: list[str] | None = None) -> tuple[argparse.Namespace, FrankaEvalConfig]:
@@ -126,7 +129,11 @@ def main(argv: list[str] | None = None) -> dict:
         print(f"[{time.time() - t_start:6.1f} s] {msg}", flush=True)
 
     with jax.default_matmul_precision(args.matmul_precision):
-        result = compare_strategies(config, log)
+        try:
+            result = compare_strategies(config, log)
+        except DivergenceError as err:
+            print(f"error: {err}; nothing written to {args.out}", file=sys.stderr)
+            sys.exit(EXIT_DIVERGED)
     for task in config.tasks:
         plot_franka_task(os.path.join(args.figures, f"lfd_franka_{task}.png"), task,
                          result.demos[task], result.folds[task], result.reproductions[task],

@@ -23,6 +23,9 @@ Writes to ``--out`` (one folder: ``tar czf lasa.tgz -C DIR .``):
   summary, the converged end points and the convergence check; ``summary``: medians over shapes
   with one row per shape (also printed as a table; :mod:`agents.lfd.lasa_summary`);
 * ``<shape>_field.png`` and ``<shape>_potential.png`` (as Figs 4.4 and 4.7).
+
+A training loss or parameter that turns non-finite stops the script with exit status 3 and one
+line naming the iteration and the shape; nothing is written.
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ from agents.lfd.config import LfdConfig
 from agents.lfd.figures import plot_lasa
 from agents.lfd.lasa_eval import canonical_shapes, evaluate_shapes, time_epochs
 from mjxrmp.data.lasa import LASA_SHAPES
+from mjxrmp.divergence import EXIT_DIVERGED, DivergenceError
 
 log = functools.partial(print, flush=True)
 
@@ -115,9 +119,13 @@ def main(argv: list[str] | None = None) -> dict:
         config = config.replace(iterations=args.iterations)
     os.makedirs(args.out, exist_ok=True)
 
-    run = evaluate_shapes(names, config, seed=args.seed, log_every=args.log_every,
-                          check_starts=args.check_starts, check_steps=args.check_steps,
-                          goal_radius=args.goal_radius, log=log)
+    try:
+        run = evaluate_shapes(names, config, seed=args.seed, log_every=args.log_every,
+                              check_starts=args.check_starts, check_steps=args.check_steps,
+                              goal_radius=args.goal_radius, log=log)
+    except DivergenceError as err:
+        print(f"error: {err}; nothing written to {args.out}", file=sys.stderr)
+        sys.exit(EXIT_DIVERGED)
     losses = np.asarray(run.result.losses)
     for i, name in enumerate(names):
         np.savez(os.path.join(args.out, f"{name}.npz"), demos=run.data["demos"][i],

@@ -1,10 +1,9 @@
 """Standalone loader for policies exported by ``agents.run.export.export_policy``.
 
 Imports only ``jax``, ``numpy`` and the standard library (``jax.export.deserialize`` also needs
-the ``flatbuffers`` package), so this file can be copied next to an exported policy and used
-without the project installed. That is why it is self-contained and holds its logic itself (it
-cannot import a project package); the manifest format it reads is written by
-``agents.run.export``.
+``flatbuffers``), so this file can be copied next to an exported policy and used without the
+project installed: that is why it holds its logic itself. ``agents.run.export`` writes the
+manifest format it reads.
 
 Python::
 
@@ -16,8 +15,10 @@ Command line::
 
     python load_policy.py policy.jaxexport --obs obs.npy --out actions.npy
 
-``--check-isolated`` makes the CLI fail if a project package (``mjxrmp``, ``agents``,
-``envs``) got imported, and print the loaded top-level modules.
+``--obs`` is a NumPy ``.npy`` file (no pickles, no text); ``--out`` a file (``.npy`` appended
+unless it ends so) or a directory (existing, or ending in a separator) that receives
+:data:`ACTIONS_NAME`; the path written is printed. ``--check-isolated`` fails if a project
+package (``mjxrmp``, ``agents``, ``envs``) got imported, and prints the top-level modules.
 """
 
 from __future__ import annotations
@@ -39,6 +40,8 @@ SUPPORTED_FORMAT_VERSIONS = (1,)
 SUFFIX = ".jaxexport"
 #: Packages of the exporting project that the loader must never need.
 PROJECT_PACKAGES = ("mjxrmp", "agents", "envs")
+#: File name of the actions when ``--out`` is a directory.
+ACTIONS_NAME = "actions.npy"
 
 
 class PolicyLoadError(ValueError):
@@ -46,20 +49,14 @@ class PolicyLoadError(ValueError):
 
 
 class LoadedPolicy:
-    """Callable ``obs → action mean`` of an exported policy.
-
-    ``obs`` is ``(b, obs_size)`` (any ``b ≥ 1``) or a single ``(obs_size,)``; the result is a
-    ``numpy.float32`` array ``(b, action_size)`` (or ``(action_size,)``). Attributes:
-    ``manifest`` (dict), ``exported`` (:class:`jax.export.Exported`), ``obs_size``,
-    ``action_size``, ``path``.
-    """
+    """Callable ``obs → action mean`` of an exported policy: ``obs (b, obs_size)`` (``b ≥ 1``)
+    or ``(obs_size,)`` gives a ``numpy.float32`` array ``(b, action_size)`` or ``(action_size,)``.
+    Attributes: ``manifest`` (dict), ``exported`` (:class:`jax.export.Exported`), ``obs_size``,
+    ``action_size``, ``path``."""
 
     def __init__(self, path: Path, manifest: dict, exported: jax_export.Exported):
-        self.path = path
-        self.manifest = manifest
-        self.exported = exported
-        self.obs_size = int(manifest["obs_size"])
-        self.action_size = int(manifest["action_size"])
+        self.path, self.manifest, self.exported = path, manifest, exported
+        self.obs_size, self.action_size = int(manifest["obs_size"]), int(manifest["action_size"])
         self._call = jax.jit(exported.call)
 
     def __call__(self, obs) -> np.ndarray:
@@ -68,10 +65,8 @@ class LoadedPolicy:
             raise TypeError(f"obs must be a real array, got dtype {obs.dtype}")
         single = obs.ndim == 1
         if obs.ndim not in (1, 2) or obs.shape[-1] != self.obs_size or obs.size == 0:
-            raise ValueError(
-                f"obs must have shape (b, {self.obs_size}) with b >= 1 or ({self.obs_size},), "
-                f"got {obs.shape}"
-            )
+            raise ValueError(f"obs must have shape (b, {self.obs_size}) with b >= 1 or "
+                             f"({self.obs_size},), got {obs.shape}")
         batch = obs[None] if single else obs
         out = np.asarray(self._call(np.ascontiguousarray(batch, np.float32)))
         return out[0] if single else out
@@ -92,10 +87,9 @@ def _read_manifest(path: Path) -> dict:
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
         raise PolicyLoadError(f"manifest {mpath} is not a {FORMAT!r} manifest")
     if manifest.get("format_version") not in SUPPORTED_FORMAT_VERSIONS:
-        raise PolicyLoadError(
-            f"manifest {mpath} has format_version={manifest.get('format_version')!r}; this "
-            f"loader reads {SUPPORTED_FORMAT_VERSIONS}"
-        )
+        raise PolicyLoadError(f"manifest {mpath} has format_version="
+                              f"{manifest.get('format_version')!r}; this loader reads "
+                              f"{SUPPORTED_FORMAT_VERSIONS}")
     for key in ("sha256", "obs_size", "action_size"):
         if key not in manifest:
             raise PolicyLoadError(f"manifest {mpath} lacks the field {key!r}")
@@ -103,12 +97,10 @@ def _read_manifest(path: Path) -> dict:
 
 
 def load_policy(path: str | os.PathLike) -> LoadedPolicy:
-    """Load the exported policy ``path`` (``.jaxexport``) after checking its manifest.
-
-    Refuses (:class:`PolicyLoadError`) a missing or foreign manifest, a blob whose SHA-256 or size
-    differs from the manifest's (corrupted or mismatched file), and an exported function whose
-    input/output shapes disagree with the manifest's ``obs_size``/``action_size``.
-    """
+    """Load the exported policy ``path`` (``.jaxexport``) after checking its manifest: refuses
+    (:class:`PolicyLoadError`) a missing or foreign manifest, a blob whose SHA-256 or size differs
+    from the manifest's (corrupted or mismatched file), and an exported function whose
+    input/output shapes disagree with the manifest's ``obs_size``/``action_size``."""
     path = Path(path)
     if path.suffix != SUFFIX:
         raise PolicyLoadError(f"path must end in {SUFFIX!r}, got {str(path)!r}")
@@ -119,11 +111,9 @@ def load_policy(path: str | os.PathLike) -> LoadedPolicy:
         raise PolicyLoadError(f"exported policy {path} not found") from None
     digest = hashlib.sha256(blob).hexdigest()
     if digest != manifest["sha256"]:
-        raise PolicyLoadError(
-            f"{path} is corrupted or does not belong to its manifest: sha256 {digest} != "
-            f"manifest sha256 {manifest['sha256']} ({len(blob)} bytes, manifest "
-            f"{manifest.get('size_bytes')})"
-        )
+        raise PolicyLoadError(f"{path} is corrupted or does not belong to its manifest: sha256 "
+                              f"{digest} != manifest sha256 {manifest['sha256']} ({len(blob)} "
+                              f"bytes, manifest {manifest.get('size_bytes')})")
     try:
         exported = jax_export.deserialize(bytearray(blob))
     except ImportError as e:
@@ -132,15 +122,11 @@ def load_policy(path: str | os.PathLike) -> LoadedPolicy:
     ins, outs = exported.in_avals, exported.out_avals
     if (len(ins) != 1 or len(ins[0].shape) != 2 or ins[0].shape[1] != obs_size
             or np.dtype(ins[0].dtype) != np.float32):
-        raise PolicyLoadError(
-            f"{path}: exported input {ins} does not match the manifest's obs (b, {obs_size}) "
-            "float32"
-        )
+        raise PolicyLoadError(f"{path}: exported input {ins} does not match the manifest's "
+                              f"obs (b, {obs_size}) float32")
     if len(outs) != 1 or len(outs[0].shape) != 2 or outs[0].shape[1] != action_size:
-        raise PolicyLoadError(
-            f"{path}: exported output {outs} does not match the manifest's action "
-            f"(b, {action_size})"
-        )
+        raise PolicyLoadError(f"{path}: exported output {outs} does not match the manifest's "
+                              f"action (b, {action_size})")
     return LoadedPolicy(path, manifest, exported)
 
 
@@ -149,43 +135,60 @@ def project_modules_loaded() -> list[str]:
     return sorted({m.split(".")[0] for m in sys.modules} & set(PROJECT_PACKAGES))
 
 
+def output_path(out: str) -> Path:
+    """The file ``--out out`` writes: ``out/``:data:`ACTIONS_NAME` for a directory (existing, or
+    ``out`` ending in a separator), else ``out`` with ``.npy`` appended unless it ends so."""
+    if out.endswith(("/", os.sep)) or Path(out).is_dir():
+        return Path(out) / ACTIONS_NAME
+    return Path(out if out.endswith(".npy") else out + ".npy")
+
+
+def read_observations(path: Path) -> np.ndarray:
+    """The array in the ``.npy`` file ``path``; ``ValueError`` naming it and the format if not."""
+    try:
+        obs = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as e:  # numpy takes a text file for a pickle
+        obs = e
+    if not isinstance(obs, np.ndarray):
+        raise ValueError(f"--obs {path}: expected a NumPy .npy array file (numpy.save) of "
+                         f"observations (b, obs_size) or (obs_size,); "
+                         f"{'no such file' if isinstance(obs, OSError) else 'not in that format'}")
+    return obs
+
+
 def main(argv: list[str] | None = None) -> int:
     """CLI: load ``policy``, run it on ``--obs`` (``.npy``), save ``--out``, print a summary."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("policy", type=Path, help="exported policy (.jaxexport)")
-    parser.add_argument("--obs", type=Path, required=True,
-                        help=".npy of observations (b, obs_size) or (obs_size,)")
-    parser.add_argument("--out", type=Path, help=".npy to write the actions to")
+    parser.add_argument("--obs", type=Path, required=True, help=".npy of observations")
+    parser.add_argument("--out", help=f".npy file, or directory for {ACTIONS_NAME}")
     parser.add_argument("--check-isolated", action="store_true",
                         help="fail if a project package (mjxrmp, agents, envs) was imported")
     args = parser.parse_args(argv)
-
     try:
         policy = load_policy(args.policy)
-    except PolicyLoadError as e:
+        obs = read_observations(args.obs)
+        t0 = time.perf_counter()
+        actions, elapsed = policy(obs), time.perf_counter() - t0
+        if (out := output_path(args.out) if args.out else None) is not None:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            np.save(out, actions)
+    except (ValueError, TypeError, OSError) as e:  # PolicyLoadError is a ValueError
         print(f"error: {e}", file=sys.stderr)
         return 2
-    obs = np.load(args.obs, allow_pickle=False)
-    t0 = time.perf_counter()
-    actions = policy(obs)
-    elapsed = time.perf_counter() - t0
-    if args.out is not None:
-        np.save(args.out, actions)
     meta = policy.manifest.get("metadata", {})
     print(f"policy   {args.policy} ({', '.join(policy.exported.platforms)}; "
-          f"{', '.join(f'{k}={meta[k]}' for k in ('env', 'policy') if k in meta) or 'no env'})")
-    print(f"backend  {jax.default_backend()}  jax {jax.__version__}")
+          f"{', '.join(f'{k}={meta[k]}' for k in ('env', 'policy') if k in meta) or 'no env'})"
+          f"\nbackend  {jax.default_backend()}  jax {jax.__version__}")
     print(f"obs      {obs.shape} -> actions {actions.shape} {actions.dtype} in {elapsed:.3f} s "
-          "(compile included)")
-    print(f"actions  min {actions.min():.6g}  max {actions.max():.6g}  "
+          f"(compile included)\nactions  min {actions.min():.6g}  max {actions.max():.6g}  "
           f"mean |a| {np.abs(actions).mean():.6g}")
-    if args.out is not None:
-        print(f"wrote    {args.out}")
+    if out is not None:
+        print(f"wrote    {out}")
     if args.check_isolated:
-        loaded = project_modules_loaded()
         top = {m.split(".")[0] for m in sys.modules if not m.startswith("_")}
         print(f"modules  {' '.join(sorted(top - set(sys.stdlib_module_names)))} (non-stdlib)")
-        if loaded:
+        if loaded := project_modules_loaded():
             print(f"error: project packages imported: {loaded}", file=sys.stderr)
             return 3
         print("isolated no project package imported")

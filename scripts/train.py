@@ -6,6 +6,11 @@ With no arguments: ``rmp_residual`` on ``three_link/env3``, CPU-sized (``--prese
 500 iterations, 30 epochs; meant for a GPU). See :mod:`agents.run.training` for what the run
 directory holds; ``--resume`` continues a run from its newest checkpoint.
 
+Exit status: 0 done; 2 refused (bad arguments, a run directory that holds another run or is in
+use by another process, an incompatible checkpoint); 3 the training diverged (a non-finite loss,
+metric or parameter; the message names the iteration, seed and quantity, the last finite
+checkpoint is kept); 130 interrupted (a checkpoint of what is done is written).
+
 Examples::
 
     python scripts/train.py
@@ -31,7 +36,12 @@ import jax  # noqa: E402
 import envs  # noqa: E402
 from agents.ppo import KINDS, make_mesh  # noqa: E402
 from agents.run.spec import PRESETS, RunSpec, parse_overrides, preset  # noqa: E402
-from agents.run.training import result_summary, run_training  # noqa: E402
+from agents.run.training import (  # noqa: E402
+    RunDirectoryInUseError,
+    result_summary,
+    run_training,
+)
+from mjxrmp.divergence import EXIT_DIVERGED, DivergenceError  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -87,9 +97,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         result = run_training(spec, out, resume=args.resume, progress=not args.no_progress,
                               mesh=make_mesh(args.devices))
-    except (FileExistsError, FileNotFoundError, ValueError) as e:
+    except (FileExistsError, FileNotFoundError, ValueError, RunDirectoryInUseError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except DivergenceError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return EXIT_DIVERGED
     except KeyboardInterrupt:
         return 130
     if result.history:

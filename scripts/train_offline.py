@@ -26,6 +26,10 @@ losses and the ETA. ``--betas`` (ATAC-type learners,
 :data:`offline.learners.registry.BETA_LEARNERS`) trains every seed at every Bellman weight β in one
 vmapped program (runs seed-major; ``beta`` in ``metrics.csv`` and ``result.json``) — ATAC's
 per-dataset selection of β.
+
+A run whose loss or parameters turn non-finite stops with exit status 3 and one line naming the
+learner, the gradient step, the seed and the quantity (``metrics.csv`` and ``checkpoints/`` end
+at the last finite chunk; no ``result.json``).
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import mjxrmp  # noqa: F401  (sets the XLA:CPU flag before JAX initialises)
 
 # isort: split
+from mjxrmp.divergence import EXIT_DIVERGED, DivergenceError
 from offline.experiment import single
 
 
@@ -58,7 +63,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 def main(argv: Sequence[str] | None = None) -> dict:
     """Train, checkpoint, evaluate; print the scores and return the result dictionary."""
     args = parse_args(argv)
-    result = single.train(args)
+    try:
+        result = single.train(args)
+    except DivergenceError as err:
+        print(f"error: {err}; result.json not written, only finite chunks were "
+              f"checkpointed ({args.out / 'checkpoints'})", file=sys.stderr)
+        sys.exit(EXIT_DIVERGED)
     print("\n".join(single.summary_lines(args, result)))
     return result
 

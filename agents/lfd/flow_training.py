@@ -30,7 +30,7 @@ member stops on its own). The epoch time is documented in :mod:`agents.lfd.fast_
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
 
 import jax
@@ -43,6 +43,7 @@ from agents.lfd.flow_field import FlowField
 from agents.lfd.optim import early_stop_update, regularised_adam, smooth_l1
 from mjxrmp.config import check_int
 from mjxrmp.data.lasa import check_demonstrations
+from mjxrmp.divergence import guard_finite_series, guard_finite_tree
 from mjxrmp.learned.flows import CONSTANTS
 
 __all__ = [
@@ -54,6 +55,10 @@ __all__ = [
     "make_train",
     "train_batched",
 ]
+
+
+#: The trainer's name in :class:`mjxrmp.divergence.DivergenceError` messages.
+_WHAT = "LfD flow training"
 
 
 class TrainState(NamedTuple):
@@ -223,7 +228,7 @@ def _batched_program(config: LfdConfig, dim: int, num_steps: int):
 def train_batched(config: LfdConfig, keys: jax.Array, x: jax.Array, v: jax.Array, *,
                   dim: int = 2, log_every: int | None = None,
                   callback: Callable[[int, int, np.ndarray, TrainState], None] | None = None,
-                  ) -> tuple[Trainer, LfdResult]:
+                  labels: Sequence[str] | None = None) -> tuple[Trainer, LfdResult]:
     """Train ``B`` independent fields in one ``vmap``-ped program: ``keys (B, 2)``, ``x`` and
     ``v (B, ..., dim)`` (seeds: the same data repeated; shapes: stacked demonstrations).
 
@@ -232,6 +237,13 @@ def train_batched(config: LfdConfig, keys: jax.Array, x: jax.Array, v: jax.Array
     called on the host (progress output). The result equals ``jax.vmap(trainer.train)`` and
     every member equals its own ``trainer.train`` run. Returns ``(trainer, result)`` with every
     leaf of ``result`` carrying the leading axis ``B``.
+
+    **Divergence guard** (docs/design.md §5.5): after each chunk, before ``callback``, a
+    non-finite loss or parameter raises :class:`mjxrmp.divergence.DivergenceError` naming the
+    iteration (the first non-finite loss's, else the chunk's last) and the member
+    (``labels[i]``, e.g. the shape's name; default ``run <i>``). (A step with a non-finite loss
+    leaves the parameters unchanged, :func:`agents.lfd.optim.early_stop_update`, so without the
+    guard a diverged member would silently stop learning.)
     """
     keys = jnp.asarray(keys)
     check_data(x, "positions x", dim)
@@ -253,8 +265,11 @@ def train_batched(config: LfdConfig, keys: jax.Array, x: jax.Array, v: jax.Array
         n = min(chunk, total - done)
         state, ls = _batched_program(config, dim, n)[2](state, x, v)
         ls = np.asarray(ls)                              # (B, n); waits for the chunk
-        losses.append(ls)
+        guard_finite_series({"loss": ls}, _WHAT, start=done, unit="iteration", runs=labels)
         done += n
+        guard_finite_tree(state.params, _WHAT, done, unit="iteration", runs=labels,
+                          batched=True)
+        losses.append(ls)
         if callback is not None:
             callback(done, total, ls, state)
     return trainer, result(state, jnp.asarray(np.concatenate(losses, axis=1)))

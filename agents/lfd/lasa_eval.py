@@ -126,7 +126,7 @@ def train_shapes(names: list[str], data: dict, config: LfdConfig, seed: int,
             + (f"  early-stopped: {stopped}/{len(names)}" if stopped else ""))
 
     return train_batched(config, keys, data["demos"], data["velocities"],
-                         log_every=log_every, callback=progress)
+                         log_every=log_every, callback=progress, labels=list(names))
 
 
 @functools.lru_cache(maxsize=8)

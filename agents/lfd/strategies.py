@@ -53,8 +53,9 @@ from agents.lfd.config import DOF, INDEPENDENT_STRATEGIES, StrategyConfig
 from agents.lfd.optim import fit, minibatch, regularised_adam, smooth_l1
 from agents.lfd.policy import StrategyResult, init_params, leaf_task_velocity, training_velocity
 from agents.lfd.samples import Samples
+from mjxrmp.divergence import guard_finite_series, guard_finite_tree
 
-__all__ = ["fold_trainer", "make_train", "strategy_loss"]
+__all__ = ["fold_trainer", "guard_finite_result", "make_train", "strategy_loss"]
 
 
 def strategy_loss(config: StrategyConfig, params: Any, constants: Any, samples: Samples
@@ -146,10 +147,32 @@ def fold_trainer(config: StrategyConfig) -> Callable[[jax.Array, Samples, jax.Ar
     """``train(keys (F, 2), samples, weights (F, S)) -> StrategyResult`` (leaves with a leading
     ``F``): :func:`make_train` jitted and ``vmap``-ped over keys and sample weights (seeds and/or
     demonstration subsets, e.g. leave-one-out folds), cached per configuration so that every
-    caller with the same configuration and array shapes shares one compiled program."""
+    caller with the same configuration and array shapes shares one compiled program. The
+    result is checked by :func:`guard_finite_result` (it waits for the program)."""
 
     def train(keys: jax.Array, samples: Samples, weights: jax.Array) -> StrategyResult:
         return jax.vmap(make_train(config), in_axes=(0, Samples(None, None, None, None, 0)))(
             keys, samples._replace(w=weights))
 
-    return jax.jit(train)
+    program = jax.jit(train)
+
+    def checked(keys: jax.Array, samples: Samples, weights: jax.Array) -> StrategyResult:
+        return guard_finite_result(program(keys, samples, weights),
+                                   f"LfD {config.strategy} training")
+
+    return checked
+
+
+def guard_finite_result(result: StrategyResult, what: str) -> StrategyResult:
+    """``result`` (stacked over runs, as :func:`fold_trainer` returns it) if its losses and
+    parameters are finite, else :class:`mjxrmp.divergence.DivergenceError` naming ``what``, the
+    first non-finite stage loss (``flow_loss``, then ``metric_loss``) with its iteration and
+    run, or the first non-finite parameter after the last iteration (docs/design.md §5.5). A step
+    with a non-finite loss leaves the parameters unchanged (:func:`agents.lfd.optim.fit`), so
+    without this check a diverged run would silently stop learning."""
+    guard_finite_series({"flow_loss": result.flow_losses}, what, unit="iteration")
+    guard_finite_series({"metric_loss": result.metric_losses}, what, unit="iteration")
+    guard_finite_tree(result.params, what,
+                      result.flow_losses.shape[1] + result.metric_losses.shape[1],
+                      unit="iteration", batched=True)
+    return result

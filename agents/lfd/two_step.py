@@ -98,6 +98,7 @@ from agents.lfd.config import NominalSettings, StrategyConfig
 from agents.lfd.optim import fit, minibatch, regularised_adam, smooth_l1
 from agents.lfd.policy import StrategyResult
 from agents.lfd.samples import Samples, fold_weights, task_coordinates
+from agents.lfd.strategies import guard_finite_result
 from mjxrmp.core.rmp import RMP
 from mjxrmp.data.franka_demos import StackedDemos
 from mjxrmp.learned.nominal import (
@@ -312,13 +313,16 @@ def train_folds(config: StrategyConfig, demos: StackedDemos, samples: Samples,
     """Both steps for every fold: step 1 per fold on the host (:func:`fit_nominal`, ``train_sets
     (F, N)`` bool), step 2 for all folds in one compiled program (:func:`fold_trainer`, sample
     weights :func:`agents.lfd.samples.fold_weights`). Returns the stacked
-    :class:`~agents.lfd.policy.StrategyResult` and the folds' :class:`NominalFit`."""
+    :class:`~agents.lfd.policy.StrategyResult` and the folds' :class:`NominalFit`; a
+    non-finite loss or parameter raises :class:`mjxrmp.divergence.DivergenceError`
+    (:func:`agents.lfd.strategies.guard_finite_result`)."""
     _check_config(config)
     train_sets = np.asarray(train_sets, bool)
     nominal = [fit_nominal(demos, tr, settings) for tr in train_sets]
     nominal = jax.tree.map(lambda *a: jnp.stack(a), *nominal)
     weights = jax.vmap(lambda tr: fold_weights(demos.mask, tr))(jnp.asarray(train_sets))
-    return fold_trainer(config)(keys, samples, weights, nominal), nominal
+    result = fold_trainer(config)(keys, samples, weights, nominal)
+    return guard_finite_result(result, "LfD two_step training"), nominal
 
 
 # ---------------------------------------------------------------------------------------------

@@ -5,7 +5,8 @@
 * :mod:`agents.run.training` — :func:`~agents.run.training.run_training`, the chunked loop;
 * :mod:`agents.run.logs` — progress bar, ``metrics.csv``, TensorBoard;
 * :mod:`agents.run.curves` — learning curves as the thesis draws them;
-* :mod:`agents.run.checkpoint` — orbax checkpoints of the whole state;
+* :mod:`agents.run.checkpoint` — orbax checkpoints of the whole state, verified by a SHA-256
+  integrity record, with fallback to the newest intact step;
 * :mod:`agents.run.loading` — a run directory back as a policy;
 * :mod:`agents.run.evaluation` — checkpoints × setups × seeds × episodes in one compiled call;
 * :mod:`agents.run.eval_report` — the evaluation report, its table and GIF;

@@ -19,6 +19,11 @@ from ``eval_seed``): common random numbers across checkpoints, seeds and runs.
 runs on another 3-link setup only when the observations agree (``env1`` has 1 obstacle,
 observation size 16; ``env2``/``env3`` have 3, size 26): mismatches are refused naming both
 sizes. The report and its table are in :mod:`agents.run.eval_report`.
+
+**Checked inputs.** ``"latest"`` and ``"all"`` mean intact checkpoints (a corrupt one is skipped
+with a one-line warning naming it; :mod:`agents.run.checkpoint`); an explicitly requested
+corrupt checkpoint, or one whose parameters hold NaN/inf, is refused with an error naming it, so
+a diverged policy is never reported (a NaN action reads as zero acceleration and looks safe).
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 from brax.envs.base import Env
 
+from agents.run import checkpoint
 from agents.run.loading import (
     LoadedRun,
     PolicyParams,
@@ -51,21 +57,32 @@ SETUPS = ("three_link/env1", "three_link/env2", "three_link/env3", "franka")
 STATS = ("return", "success", "safe", "final_goal_distance", "length", "nonfinite")
 
 
+def _intact_steps(ckpt_dir: str, newest_only: bool) -> list[int]:
+    """Every intact checkpoint step, or only the newest; corrupt ones are warned about."""
+    steps = ([checkpoint.latest_intact_step(ckpt_dir)] if newest_only
+             else checkpoint.intact_steps(ckpt_dir))
+    steps = [s for s in steps if s is not None]
+    if not steps:
+        raise checkpoint.CorruptCheckpointError(ckpt_dir, "none of its checkpoints is intact")
+    return steps
+
+
 def resolve_steps(run_dir: str, tokens: Sequence[str | int] = ("latest",)) -> list[int]:
     """The checkpoint steps of ``run_dir`` that ``tokens`` name (ascending, distinct):
-    ``"all"``, ``"latest"`` or iteration numbers. Raises ``FileNotFoundError`` for a missing
-    directory or ``run.json``, a run without checkpoints or a step it does not have (listing the
-    available ones)."""
+    ``"all"`` (every intact one), ``"latest"`` (the newest intact one) or iteration numbers;
+    corrupt checkpoints skipped for ``"all"``/``"latest"`` are named in a warning. Raises
+    ``FileNotFoundError`` for a missing directory or ``run.json``, a run without checkpoints or
+    a step it does not have (listing the available ones), and
+    :class:`agents.run.checkpoint.CorruptCheckpointError` when no checkpoint is intact."""
     read_spec(run_dir)  # clear errors for a missing directory or run.json first
     available = checkpoint_steps(run_dir)
+    ckpt_dir = os.path.join(run_dir, "checkpoints")
     if not available:
-        raise FileNotFoundError(f"no checkpoint in {os.path.join(run_dir, 'checkpoints')!r}")
+        raise FileNotFoundError(f"no checkpoint in {ckpt_dir!r}")
     out: set[int] = set()
     for tok in tokens:
-        if tok == "all":
-            out.update(available)
-        elif tok == "latest":
-            out.add(available[-1])
+        if tok in ("all", "latest"):
+            out.update(_intact_steps(ckpt_dir, newest_only=tok == "latest"))
         else:
             try:
                 step = int(tok)
@@ -141,7 +158,15 @@ class Sweep:
 def stack_params(checkpoints: Sequence[LoadedRun]
                  ) -> tuple[PolicyParams, list[tuple[int, int]]]:
     """``(stack, members)``: every checkpoint's per-seed :class:`agents.run.loading.PolicyParams`
-    concatenated along the leading axis, and ``(checkpoint index, seed index)`` per row."""
+    concatenated along the leading axis, and ``(checkpoint index, seed index)`` per row. Raises
+    :class:`agents.run.checkpoint.NonFiniteCheckpointError` naming the checkpoint and the leaf
+    if any parameter is NaN/inf."""
+    for c in checkpoints:
+        leaf = checkpoint.first_nonfinite(policy_params(c))
+        if leaf is not None:
+            raise checkpoint.NonFiniteCheckpointError(
+                f"cannot evaluate checkpoint {c.step} of {c.run_dir}: its policy parameters hold "
+                f"non-finite values in {leaf} (the run diverged)")
     stack = jax.tree.map(lambda *xs: jnp.concatenate(xs),
                          *[policy_params(c) for c in checkpoints])
     members = [(i, s) for i, c in enumerate(checkpoints) for s in range(len(c.seeds))]

@@ -16,6 +16,10 @@ backend). It writes two files:
 policy kind, robot, observation layout); :func:`export_run` is what ``scripts/export.py`` calls
 (a checkpoint's policy, or a freshly initialised one).
 
+Parameters with a NaN or inf leaf are refused (``ValueError`` naming the leaf): a diverged
+policy is never exported. :func:`export_run` refuses to overwrite an existing blob or manifest
+unless ``force=True`` (``scripts/export.py --force``).
+
 Load either with ``scripts/load_policy.py`` (standalone: ``jax``, ``numpy`` and the standard
 library only) or with ``jax.export.deserialize`` directly.
 
@@ -48,6 +52,7 @@ from jax import export as jax_export
 
 import envs
 from agents.ppo import KINDS, make_env_and_policy
+from agents.run.checkpoint import first_nonfinite
 from agents.run.loading import deterministic_policy, load_run
 from mjxrmp.atomic import atomic_write
 
@@ -220,11 +225,16 @@ def export_policy(
     ``matmul_precision=None`` keeps the backend's default float32 matmul precision, as in
     training (on recent NVIDIA GPUs a TF32-class precision: ``nn`` actions on an H100 then
     differ from CPU ones by ~5e-4 relative); ``"highest"`` bakes full float32 precision into
-    every matrix product (``jax.default_matmul_precision`` while tracing).
+    every matrix product (``jax.default_matmul_precision`` while tracing). Parameters with a
+    NaN/inf leaf raise ``ValueError`` naming it.
     """
     path, platforms = _check_args(obs_size, path, metadata, platforms, matmul_precision)
     if not callable(apply_fn):
         raise TypeError(f"apply_fn must be callable, got {type(apply_fn).__name__}")
+    leaf = first_nonfinite(params)
+    if leaf is not None:
+        raise ValueError(f"params hold non-finite values in {leaf}: refusing to export "
+                         f"{str(path)!r} (a diverged policy?)")
     (b,) = jax_export.symbolic_shape("b")
     spec = jax.ShapeDtypeStruct((b, obs_size), jnp.float32)
     precision = (contextlib.nullcontext() if matmul_precision is None
@@ -300,12 +310,17 @@ def export_run(out: str | os.PathLike, checkpoint: str | os.PathLike | None = No
                step: int | None = None, train_seed_index: int = 0, env_name: str | None = None,
                kind: str | None = None, seed: int = 0,
                platforms: Sequence[str] = ("cpu", "cuda"),
-               matmul_precision: str | None = None) -> dict:
+               matmul_precision: str | None = None, force: bool = False) -> dict:
     """What ``scripts/export.py`` exports: with ``checkpoint`` (a run directory) the policy of
-    checkpoint ``step`` (default: the newest) and training seed ``train_seed_index``, its
-    observation statistics baked in; otherwise a freshly initialised ``kind`` policy for
-    ``env_name`` (``params = module.init(PRNGKey(seed), zeros(obs_size))``). Returns the
-    manifest (:func:`export_from_params`)."""
+    checkpoint ``step`` (default: the newest intact one; NaN/inf parameters are refused) and
+    training seed ``train_seed_index``, its observation statistics baked in; otherwise a freshly
+    initialised ``kind`` policy for ``env_name`` (``params = module.init(PRNGKey(seed),
+    zeros(obs_size))``). An existing ``out`` or manifest raises ``FileExistsError`` naming it
+    unless ``force``. Returns the manifest (:func:`export_from_params`)."""
+    existing = [p for p in (Path(out), manifest_path(out)) if p.exists()]
+    if existing and not force:
+        raise FileExistsError(f"{str(existing[0])!r} already exists; pass force=True (--force) "
+                              "to overwrite it")
     if checkpoint is not None:
         run = load_run(checkpoint, step)
         apply_fn, params = deterministic_policy(run, train_seed_index)

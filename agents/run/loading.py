@@ -2,9 +2,12 @@
 
 :func:`load_run` rebuilds the :class:`~agents.run.spec.RunSpec` from ``run.json``, the
 :class:`~agents.run.program.Program` with :func:`~agents.run.program.build` and restores a
-checkpoint (default: the newest) into the seed-stacked :class:`~agents.ppo.state.TrainState`; the
-checkpoint's meta must match the spec
-(:class:`agents.run.checkpoint.IncompatibleCheckpointError` otherwise).
+checkpoint (default: the newest intact one) into the seed-stacked
+:class:`~agents.ppo.state.TrainState`; the checkpoint's files must pass their integrity check
+(:class:`agents.run.checkpoint.CorruptCheckpointError`), its meta must match the spec
+(:class:`agents.run.checkpoint.IncompatibleCheckpointError`) and its state must be finite
+(:class:`agents.run.checkpoint.NonFiniteCheckpointError`), so nothing downstream (evaluation,
+export) ever acts with NaN parameters.
 
 The deterministic policy of a checkpoint is its Gaussian mean (the environment clips it):
 ``apply_fn(policy_params, obs) -> mean`` with ``policy_params`` a :class:`PolicyParams` (the
@@ -27,7 +30,6 @@ from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import jax
-import orbax.checkpoint as ocp
 from brax.envs.base import Env, State
 
 from agents.ppo import PPOConfig, TrainState, make_env_and_policy
@@ -101,13 +103,9 @@ def spec_from_json(d: dict[str, Any]) -> RunSpec:
 
 
 def checkpoint_steps(run_dir: str | os.PathLike) -> list[int]:
-    """The complete checkpoint steps (iterations) of a run directory, ascending ([] if none)."""
-    ckpt_dir = os.path.join(os.fspath(run_dir), "checkpoints")
-    if not os.path.isdir(ckpt_dir):
-        return []
-    options = ocp.CheckpointManagerOptions(create=False)
-    with ocp.CheckpointManager(os.path.abspath(ckpt_dir), options=options) as mgr:
-        return sorted(int(s) for s in mgr.all_steps())
+    """The complete checkpoint steps (iterations) of a run directory, ascending ([] if none),
+    verified or not (:func:`agents.run.checkpoint.all_steps`)."""
+    return checkpoint.all_steps(os.path.join(os.fspath(run_dir), "checkpoints"))
 
 
 def read_spec(run_dir: str | os.PathLike) -> RunSpec:
@@ -132,14 +130,16 @@ def read_spec(run_dir: str | os.PathLike) -> RunSpec:
 
 
 def load_run(run_dir: str | os.PathLike, step: int | None = None) -> LoadedRun:
-    """Restore checkpoint ``step`` (default: the newest) of the run in ``run_dir``.
+    """Restore checkpoint ``step`` (default: the newest intact one) of the run in ``run_dir``.
 
     The spec comes from ``run.json``, the program from :func:`agents.run.program.build` (cached,
     so loading several checkpoints of one run builds it once), the state with the template
     ``jax.eval_shape(program.init, seed_keys(spec.seeds))``. Raises ``FileNotFoundError`` for a
-    missing directory, ``run.json`` or checkpoint (naming the steps there are), and
+    missing directory, ``run.json`` or checkpoint (naming the steps there are),
     :class:`agents.run.checkpoint.IncompatibleCheckpointError` when the checkpoint does not belong
-    to the spec (environment, policy kind, seeds, PPO settings or array shapes differ).
+    to the spec (environment, policy kind, seeds, PPO settings or array shapes differ),
+    :class:`~agents.run.checkpoint.CorruptCheckpointError` for a corrupt requested step (or no
+    intact one) and :class:`~agents.run.checkpoint.NonFiniteCheckpointError` for NaN/inf state.
     """
     run_dir = os.fspath(run_dir)
     spec = read_spec(run_dir)
@@ -147,15 +147,13 @@ def load_run(run_dir: str | os.PathLike, step: int | None = None) -> LoadedRun:
     ckpt_dir = os.path.join(run_dir, "checkpoints")
     if not steps:
         raise FileNotFoundError(f"no checkpoint in {ckpt_dir!r}")
-    if step is None:
-        step = steps[-1]
-    elif step not in steps:
+    if step is not None and step not in steps:
         raise FileNotFoundError(f"no checkpoint of step={step!r} in {ckpt_dir!r}; available "
                                 f"steps are {steps}")
     program = build(spec)
     template = jax.eval_shape(program.init, seed_keys(spec.seeds))
     state, meta = checkpoint.restore(ckpt_dir, template, step=step, expected=spec.identity())
-    return LoadedRun(run_dir, spec, program, state, meta, int(step))
+    return LoadedRun(run_dir, spec, program, state, meta, int(meta["step"]))
 
 
 def policy_params(loaded: LoadedRun, seed_index: int | None = None) -> PolicyParams:

@@ -76,18 +76,45 @@ def summary_line(history: dict[str, np.ndarray], steps_per_second: float,
             f"{steps_per_second:.3g} steps/s")
 
 
+def first_nonfinite_metric(history: dict[str, np.ndarray]) -> tuple[int, int, str, float] | None:
+    """The earliest non-finite logged value as ``(iteration index, seed index, metric, value)``
+    (``loss`` named first when several are non-finite at that iteration), or None. Episode
+    metrics (:data:`EPISODE_METRICS`) count only where episodes finished (they are NaN by
+    design where none did)."""
+    eps = history.get("episodes")
+    found = []
+    for k, v in history.items():
+        bad = ~np.isfinite(v)
+        if k in EPISODE_METRICS and eps is not None:
+            bad &= eps > 0
+        its = np.flatnonzero(bad.any(0))
+        if its.size:
+            s = int(np.flatnonzero(bad[:, its[0]])[0])
+            found.append((int(its[0]), k != "loss", k, s, float(v[s, its[0]])))
+    if not found:
+        return None
+    it, _, k, s, value = min(found)
+    return it, s, k, value
+
+
 def improvement_summary(history: dict[str, np.ndarray]) -> str:
     """First vs last tenth of the run (at least one, at most 10 iterations each): seed-mean
-    step reward and episode return, and whether the final policy beats the initial one."""
+    step reward and episode return, and whether the final policy beats the initial one — no
+    verdict when a logged value is non-finite (:func:`first_nonfinite_metric`)."""
     n = history["mean_reward"].shape[1]
     k = max(1, min(10, n // 10))
+    fault = first_nonfinite_metric(history)
     parts = []
     for key, label in (("mean_reward", "mean step reward"),
                        ("mean_episode_return", "mean episode return")):
         first, last = float(nanmean(history[key][:, :k])), float(nanmean(history[key][:, -k:]))
-        verdict = "improved" if last > first else "not improved"
-        parts.append(f"{label} {first:.4g} (first {k} it.) → {last:.4g} (last {k} it.): "
+        verdict = "" if fault is not None else ": improved" if last > first else ": not improved"
+        parts.append(f"{label} {first:.4g} (first {k} it.) → {last:.4g} (last {k} it.)"
                      f"{verdict}")
+    if fault is not None:
+        it, _, key, value = fault
+        parts.append(f"no verdict: the run has non-finite values ({key} is {value:g} at "
+                     f"iteration {it + 1})")
     return "\n".join(parts)
 
 
@@ -160,5 +187,5 @@ class TensorBoard:
             self.writer.close()
 
 
-__all__ = ["ProgressBar", "TensorBoard", "improvement_summary", "nanmean", "read_csv",
-           "summary_line", "write_csv"]
+__all__ = ["ProgressBar", "TensorBoard", "first_nonfinite_metric", "improvement_summary",
+           "nanmean", "read_csv", "summary_line", "write_csv"]

@@ -9,7 +9,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from agents.ppo import KINDS, PPOConfig
-from mjxrmp.config import check_choice, check_int
+from mjxrmp.config import check_choice, check_int, parse_assignments
 
 
 def cpu_preset(**overrides: Any) -> PPOConfig:
@@ -35,30 +35,11 @@ def preset(name: str, **overrides: Any) -> PPOConfig:
 
 
 def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
-    """``["learning_rate=1e-4", "policy_hidden_sizes=64,64"]`` → typed :class:`PPOConfig`
-    overrides (the type of each field's default; ``none`` for None, ``1/true/yes`` for True)."""
-    fields = {f.name for f in dataclasses.fields(PPOConfig)}
-    defaults = PPOConfig()
-    out: dict[str, Any] = {}
-    for item in items:
-        if "=" not in item:
-            raise ValueError(f"--set expects NAME=VALUE, got {item!r}")
-        name, value = item.split("=", 1)
-        if name not in fields:
-            raise ValueError(f"--set: unknown PPOConfig field {name!r}; valid fields are "
-                             f"{sorted(fields)}")
-        current = getattr(defaults, name)
-        if isinstance(current, bool):
-            out[name] = value.lower() in ("1", "true", "yes")
-        elif isinstance(current, tuple):
-            out[name] = tuple(int(v) for v in value.split(",") if v)
-        elif value.lower() == "none":
-            out[name] = None
-        elif isinstance(current, int) and name != "max_grad_norm":
-            out[name] = int(value)
-        else:
-            out[name] = float(value)
-    return out
+    """``["learning_rate=1e-4", "policy_hidden_sizes=64,64"]`` → :class:`PPOConfig` overrides,
+    each parsed by the field's declared type (:func:`mjxrmp.config.parse_field`: ``none`` for
+    None, strict ``true``/``false``/``1``/``0`` for booleans, comma-separated tuples); an error
+    names the ``--set`` item, the field and the expected type."""
+    return parse_assignments(PPOConfig, items, option="--set")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -3,7 +3,11 @@ progress, CSV/TensorBoard logs, learning-curve PNGs and resumable orbax checkpoi
 
 :func:`run_training` is what ``scripts/train.py`` calls. A run directory holds
 
-* ``run.json`` — the :class:`agents.run.spec.RunSpec`;
+* ``run.json`` — the :class:`agents.run.spec.RunSpec` (written once the directory and, on
+  resume, the checkpoint have been checked against it);
+* ``.lock`` — held (``fcntl.flock``) by the process training into the directory, with its id;
+  a second process on the same directory is refused (:class:`RunDirectoryInUseError`); the
+  operating system releases the lock when the process ends, ``kill -9`` included;
 * ``metrics.csv`` — one row per (iteration, seed): every PPO metric (:mod:`agents.ppo.train`) plus
   ``env_steps`` (:mod:`agents.run.logs`);
 * ``tb/`` — TensorBoard event files (seed mean and per seed);
@@ -17,17 +21,26 @@ Iterations run in compiled chunks of ``log_every`` (one ``lax.scan`` each, all s
 ``vmap``; :mod:`agents.run.program`); a checkpoint holds the complete state, and iteration ``i``
 draws its random numbers from ``fold_in(key, i)``, so a resumed run continues exactly as the
 uninterrupted one.
+
+After every chunk the divergence guard checks the chunk's metrics
+(:func:`agents.run.logs.first_nonfinite_metric`) and, in one reduction on the device, the new
+parameters: on a non-finite value the run stops with :class:`DivergenceError` naming the
+iteration, seed and quantity; the logs and curves keep what was logged, the non-finite state is
+not checkpointed.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import fcntl
 import json
 import math
 import os
 import sys
 import time
-from typing import IO
+from collections.abc import Iterator
+from typing import IO, Any
 
 import jax
 import numpy as np
@@ -39,12 +52,22 @@ from agents.run.curves import plot_curves
 from agents.run.logs import (
     ProgressBar,
     TensorBoard,
+    first_nonfinite_metric,
     improvement_summary,
     summary_line,
     write_csv,
 )
 from agents.run.program import Program, build, seed_keys
 from agents.run.spec import RunSpec
+from mjxrmp.atomic import atomic_write
+from mjxrmp.divergence import DivergenceError, guard_finite_tree
+
+#: The lock file of a run directory.
+LOCK_FILE = ".lock"
+
+
+class RunDirectoryInUseError(RuntimeError):
+    """A run directory another process is training into."""
 
 
 @dataclasses.dataclass
@@ -70,8 +93,30 @@ def _history_from_json(d: dict[str, list]) -> dict[str, np.ndarray]:
             for k, v in d.items()}
 
 
-def _prepare_dir(spec: RunSpec, out_dir: str, resume: bool) -> str:
-    """Check ``out_dir`` against ``resume``, write ``run.json``; the checkpoint directory."""
+@contextlib.contextmanager
+def lock_run_directory(out_dir: str) -> Iterator[None]:
+    """Hold an exclusive ``fcntl.flock`` on ``<out_dir>/.lock`` (this process's id written in
+    it) for the ``with`` block; :class:`RunDirectoryInUseError` naming the holder's process
+    id if another process holds it. The lock goes with the process (``kill -9`` included)."""
+    fd = os.open(os.path.join(out_dir, LOCK_FILE), os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "(unknown id)"
+            raise RunDirectoryInUseError(
+                f"{out_dir} is in use by process {holder} (another run trains into it); wait "
+                "for it to end or choose another output directory") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)
+
+
+def _check_dir(out_dir: str, resume: bool) -> str:
+    """Check ``out_dir`` against ``resume`` (a fresh run needs a directory without checkpoints,
+    a resumed one a checkpoint); the checkpoint directory."""
     ckpt_dir = os.path.join(out_dir, "checkpoints")
     has_ckpt = checkpoint.latest_step(ckpt_dir) is not None
     if has_ckpt and not resume:
@@ -79,12 +124,12 @@ def _prepare_dir(spec: RunSpec, out_dir: str, resume: bool) -> str:
                               "continue it or choose another output directory")
     if resume and not has_ckpt:
         raise FileNotFoundError(f"resume=True but there is no checkpoint in {ckpt_dir}")
-    os.makedirs(out_dir, exist_ok=True)
-    tmp = os.path.join(out_dir, "run.json.tmp")
-    with open(tmp, "w") as f:
-        json.dump(spec.to_json(), f, indent=1)
-    os.replace(tmp, os.path.join(out_dir, "run.json"))
     return ckpt_dir
+
+
+def _write_spec(spec: RunSpec, out_dir: str) -> None:
+    """``run.json`` (atomically)."""
+    atomic_write(os.path.join(out_dir, "run.json"), json.dumps(spec.to_json(), indent=1).encode())
 
 
 def _initial_state(program: Program, spec: RunSpec, ckpt_dir: str, resume: bool
@@ -146,28 +191,62 @@ class _Saver:
         self.saved = at
 
 
+def _divergence(spec: RunSpec, metrics: dict[str, np.ndarray], params: Any,
+                start: int) -> DivergenceError | None:
+    """What went non-finite in the chunk of iterations after ``start`` (its metrics first, then
+    the parameters it ends with, reduced to one flag on the device), or None if nothing did."""
+    runs = [f"seed {s}" for s in spec.seeds]
+    fault = first_nonfinite_metric(metrics)
+    if fault is not None:
+        it, s, name, value = fault
+        return DivergenceError("training", start + it + 1, name, value, unit="iteration",
+                               run=runs[s])
+    end = start + next(iter(metrics.values())).shape[1]
+    try:
+        guard_finite_tree(params, "training", end, unit="iteration", runs=runs, batched=True)
+    except DivergenceError as e:
+        return e
+    return None
+
+
+def _divergence_error(error: DivergenceError, ckpt_dir: str) -> DivergenceError:
+    """``error`` with the newest intact checkpoint named (the last finite one: a diverged chunk
+    is never saved)."""
+    last = checkpoint.latest_intact_step(ckpt_dir)
+    return error.with_note(
+        f"the last finite checkpoint is iteration {last} in {ckpt_dir}" if last is not None
+        else f"no checkpoint was written before it (none in {ckpt_dir})")
+
+
 def _train_chunks(program: Program, spec: RunSpec, state: TrainState, done: int,
                   log: _RunLog, saver: _Saver) -> tuple[TrainState, int, float]:
     """Run chunks of ``log_every`` iterations up to ``total_iterations``, logging each and
     checkpointing every ``checkpoint_every`` and at the end; on Ctrl-C checkpoint what is done
-    and re-raise. Returns ``(state, iterations done, training seconds)``."""
-    total, train_s = spec.ppo.total_iterations, 0.0
+    and re-raise; on a non-finite metric or parameter log the chunk and raise
+    :class:`DivergenceError` (without checkpointing it). Returns ``(state, iterations done,
+    training seconds)``."""
+    total, train_s, diverged = spec.ppo.total_iterations, 0.0, None
     try:
         while done < total:
-            n = min(spec.log_every, total - done)
+            start, n = done, min(spec.log_every, total - done)
             executable = program.executable(state, n)
             t0 = time.perf_counter()
             new_state, metrics = executable(state)
             metrics = jax.tree.map(np.asarray, metrics)  # blocks until the chunk is done
             dt = time.perf_counter() - t0
             train_s += dt
-            state, done = new_state, done + n
-            log.append(metrics, done - n, done, dt)
+            diverged = _divergence(spec, metrics, new_state.params, start)
+            if diverged is None:
+                state, done = new_state, start + n
+            log.append(metrics, start, start + n, dt)
+            if diverged is not None:
+                log.close_bar()
+                raise _divergence_error(diverged, saver.ckpt_dir)
             if done % spec.checkpoint_every == 0 or done == total:
                 saver.save(done, state, log.history)
     except KeyboardInterrupt:
         log.close_bar()
-        if done > 0:
+        if done > 0 and diverged is None:
             saver.save(done, state, log.history)
             print(f"\ninterrupted: checkpoint of iteration {done} written to "
                   f"{saver.ckpt_dir}; continue with --resume", file=sys.stderr)
@@ -192,20 +271,34 @@ def _plot(program: Program, spec: RunSpec, history: dict[str, np.ndarray], out_d
 
 def run_training(spec: RunSpec, out_dir: str, resume: bool = False, progress: bool = True,
                  mesh: Mesh | None = None, stream: IO[str] | None = None) -> RunResult:
-    """Train ``spec`` into ``out_dir`` (see the module docstring); ``resume`` continues from the
-    newest checkpoint there (refusing one of another environment, policy or configuration)."""
-    ckpt_dir = _prepare_dir(spec, out_dir, resume)
-    program = build(spec, mesh)
-    compile_before = program.compile_seconds
-    state, history, done = _initial_state(program, spec, ckpt_dir, resume)
-    total = spec.ppo.total_iterations
-    if done >= total:
-        print(f"run already has {done} >= {total} iterations", file=stream or sys.stderr)
-    log = _RunLog(spec, out_dir, history, ProgressBar(total, stream) if progress else None)
-    state, done, train_s = _train_chunks(program, spec, state, done, log,
-                                         _Saver(spec, ckpt_dir, done))
-    if history:
-        _plot(program, spec, history, out_dir)
+    """Train ``spec`` into ``out_dir`` (see the module docstring) under the directory's lock;
+    ``resume`` continues from the newest checkpoint there (refusing one of another
+    environment, policy or configuration before ``run.json`` is written)."""
+    if not resume:
+        os.makedirs(out_dir, exist_ok=True)
+    elif not os.path.isdir(out_dir):
+        raise FileNotFoundError(f"resume=True but {out_dir} does not exist (no checkpoint to "
+                                "resume)")
+    # every process of a multi-host run trains into the same directory: the first one locks it
+    lock = lock_run_directory(out_dir) if jax.process_index() == 0 else contextlib.nullcontext()
+    with lock:
+        ckpt_dir = _check_dir(out_dir, resume)
+        program = build(spec, mesh)
+        compile_before = program.compile_seconds
+        state, history, done = _initial_state(program, spec, ckpt_dir, resume)
+        _write_spec(spec, out_dir)
+        total = spec.ppo.total_iterations
+        if done >= total:
+            print(f"run already has {done} >= {total} iterations", file=stream or sys.stderr)
+        log = _RunLog(spec, out_dir, history, ProgressBar(total, stream) if progress else None)
+        try:
+            state, done, train_s = _train_chunks(program, spec, state, done, log,
+                                                 _Saver(spec, ckpt_dir, done))
+        except DivergenceError:
+            _plot(program, spec, history, out_dir)
+            raise
+        if history:
+            _plot(program, spec, history, out_dir)
     steps = done * spec.ppo.batch_size * len(spec.seeds) if history else 0
     return RunResult(history, state, program.trainer,
                      program.compile_seconds - compile_before, train_s, steps)
@@ -219,4 +312,5 @@ def result_summary(result: RunResult) -> str:
             f"training {result.train_seconds:.1f} s, {rate:.3g} env steps/s")
 
 
-__all__ = ["RunResult", "result_summary", "run_training"]
+__all__ = ["LOCK_FILE", "RunDirectoryInUseError", "RunResult",
+           "lock_run_directory", "result_summary", "run_training"]

@@ -33,6 +33,9 @@ LeafFn = Callable[..., Any]
 RESOLVE_REGULARIZATION = 1e-3
 #: ``scale = max(1, RESOLVE_SCALE · max|M_ij|)``.
 RESOLVE_SCALE = 0.01
+#: Debug mode accepts a leaf metric eigenvalue down to ``−PSD_TOLERANCE · eps · max|M_ij|``
+#: (rounding of a singular metric such as a rank-one target metric).
+PSD_TOLERANCE = 100.0
 
 
 # --------------------------------------------------------------------------------------------
@@ -48,6 +51,8 @@ def check_configuration(name: str, value: Any, d: int | None = None) -> jax.Arra
             f"{name} must be a 1-D configuration vector of shape (d,), got shape {arr.shape}; "
             "batch with jax.vmap instead of passing a batch"
         )
+    if arr.shape[0] == 0:
+        raise ValueError(f"{name} must have at least one coordinate, got shape {arr.shape}")
     if not jnp.issubdtype(arr.dtype, jnp.floating):
         raise TypeError(f"{name} must be a floating-point array, got dtype {arr.dtype}")
     if d is not None and arr.shape[0] != d:
@@ -127,6 +132,30 @@ def _debug_check(enabled: bool, tree: Any, what: str) -> None:
         checkify.check(jnp.all(jnp.isfinite(leaf)), f"non-finite value in {what}{where}")
 
 
+def _debug_check_metrics(enabled: bool, x_tree: Any, rmps: list[RMP]) -> None:
+    """Debug mode: every leaf metric ``M_k`` must be positive semi-definite (thesis §3.2.2: a
+    leaf with ``ẋᵀM_kẋ < 0`` reverses its own acceleration in the root). The quadratic form
+    sees only the symmetric part, and ``M = G + Ξ_G`` of a velocity-dependent metric (eq 3.14)
+    need not be symmetric, so the check is ``λ_min(½(M + Mᵀ)) ≥ −tol·max|M|`` per member."""
+    if not enabled:
+        return
+    paths = [jax.tree_util.keystr(p) or "<root>" for p, _ in
+             jax.tree_util.tree_flatten_with_path(x_tree)[0]]
+    for where, (M, _) in zip(paths, rmps, strict=True):
+        if M.shape[0] == 0:
+            continue
+        M = jnp.where(jnp.isfinite(M), M, 0.0)  # non-finite entries: reported by _debug_check
+        sym = 0.5 * (M + jnp.swapaxes(M, -1, -2))
+        low = sym[:, 0, 0] if M.shape[-1] == 1 else jnp.linalg.eigvalsh(sym)[:, 0]
+        tol = PSD_TOLERANCE * jnp.finfo(M.dtype).eps * jnp.max(jnp.abs(M), axis=(1, 2))
+        ok = low >= -tol
+        first = jnp.argmin(ok)
+        name = where.replace("{", "{{").replace("}", "}}")
+        checkify.check(jnp.all(ok), f"leaf_fn output{name}: metric M is not positive "
+                       "semi-definite; member {member} has minimum eigenvalue {value}",
+                       member=first, value=low[first])
+
+
 # --------------------------------------------------------------------------------------------
 # Forward pass: positions, velocities, curvatures and Jacobians of every family.
 # --------------------------------------------------------------------------------------------
@@ -194,6 +223,7 @@ def _pullback(task_map, leaf_fn, q, qd, ctx, debug: bool) -> RMP:
     _debug_check(debug, (x, xd, c, J), "task_map output (x, xd, curvature, J)")
     rmps = flatten_leaf_rmps(x, leaf_fn(x, xd, *ctx), "f")
     _debug_check(debug, jax.tree.unflatten(jax.tree.structure(x), rmps), "leaf_fn output")
+    _debug_check_metrics(debug, x, rmps)
     root = _accumulate(jax.tree.leaves(J), rmps, jax.tree.leaves(c))
     _debug_check(debug, root, "root RMP")
     return root
@@ -205,6 +235,7 @@ def _pullback_velocity(task_map, leaf_fn, q, ctx, debug: bool) -> RMP:
     _debug_check(debug, (x, J), "task_map output (x, J)")
     rmps = flatten_leaf_rmps(x, leaf_fn(x, *ctx), "p")
     _debug_check(debug, jax.tree.unflatten(jax.tree.structure(x), rmps), "leaf_fn output")
+    _debug_check_metrics(debug, x, rmps)
     root = _accumulate(jax.tree.leaves(J), rmps)
     _debug_check(debug, root, "root RMP")
     return root
@@ -276,7 +307,8 @@ def acceleration(
     """RMP² policy ``q̈ = π(q, q̇)``: :func:`resolve` ∘ :func:`pullback` (Algorithm 2, eq 3.10).
 
     With ``debug=True`` (concrete inputs only) the computation runs under ``checkify`` and raises
-    on the first non-finite value, naming where it arose.
+    on the first non-finite value, naming where it arose, or on a leaf metric that is not
+    positive semi-definite, naming the leaf (its path in the task map's output) and member.
     """
     q = check_configuration("q", q)
     qd = check_configuration("qd", qd, q.shape[0])

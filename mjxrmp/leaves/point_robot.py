@@ -42,7 +42,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxrmp.config import param_dataclass
+from mjxrmp.config import param_dataclass, positive
 from mjxrmp.core.rmp import RMP
 from mjxrmp.leaves.gds import Damping, Leaf, Metric, Potential, gds
 
@@ -75,8 +75,8 @@ class GoalAttractorParams:
 
     w_u: float = 10.0  #: metric weight at the goal
     w_l: float = 1.0  #: metric weight far from the goal
-    sigma: float = 1.0  #: length scale of the metric's transition
-    alpha: float = 1.0  #: soft-normalisation sharpness of ``tanh(α‖x‖)``
+    sigma: float = positive(1.0)  #: length scale of the metric's transition
+    alpha: float = positive(1.0)  #: soft-normalisation sharpness of ``tanh(α‖x‖)``
     eta: float = 2.0  #: damping gain, ``B = η w(x) I``
     gain: float = 1.0  #: potential gain
 
@@ -88,7 +88,7 @@ class CollisionParams:
     epsilon: float = 0.2  #: metric floor in ``u(ẋ) = ε + min(0, ẋ)ẋ`` (1e-8 between robots)
     alpha: float = 1e-5  #: barrier potential gain, ``Φ = ½ α w²``
     eta: float = 0.0  #: damping gain, ``B = η G``
-    w_max: float = 1e10  #: cap on ``w(x) = 1/x⁴``
+    w_max: float = positive(1e10)  #: cap on ``w(x) = 1/x⁴``
     m_max: float = 1e5  #: clip on the inertia
     f_max: float = 1e10  #: clip on the force
 

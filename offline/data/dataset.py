@@ -29,6 +29,10 @@ are kept apart because they mean different Bellman targets — ``r + γ(1 − d)
 ``d = terminal`` only — and because cutting episodes at collisions is what creates the length
 bias of thesis §8.3.3.
 
+A dataset's ``metadata["env"]`` names the environment it was collected on (an :func:`envs.make`
+name; :mod:`offline.data.collect` records it); :func:`check_environment` refuses the dataset for
+another environment, naming both.
+
 Invariants (checked by :func:`validate`, which :func:`create`, :func:`from_transitions`,
 :func:`save` and :func:`load` call): equal leading sizes, the dtypes above (floating arrays of
 one dtype per field, ``bool`` flags, ``int32`` ids ≥ 0), finite values, no transition both a
@@ -73,6 +77,7 @@ from offline.data.table import (
     TransitionTable,
     check_environment,
     create,
+    environment_id,
     renumber_episodes,
     validate,
 )
@@ -89,6 +94,7 @@ __all__ = [
     "check_environment",
     "concatenate",
     "create",
+    "environment_id",
     "episode_bounds",
     "episode_statistics",
     "filter_episodes",

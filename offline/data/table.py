@@ -5,7 +5,9 @@ documented in :mod:`offline.data.dataset` (docs/design.md §2.4)."""
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import json
+import warnings
 from collections.abc import Iterator, Mapping
 from typing import Any
 
@@ -220,17 +222,43 @@ def validate(dataset: Dataset, *, name: str = "dataset") -> Dataset:
     return dataset
 
 
+def environment_id(env: Any) -> str | None:
+    """The :func:`envs.make` name of the environment object ``env`` (brax wrappers unwrapped),
+    or None for an object that no registered constructor builds."""
+    from envs.registry import ENVIRONMENTS  # lazy: holding an env means envs is loaded already
+    inner = getattr(env, "unwrapped", env)
+    for env_id, ctor in ENVIRONMENTS.items():
+        cls = getattr(ctor, "func", ctor)
+        if type(inner) is cls:
+            bound = inspect.signature(cls).bind_partial(*getattr(ctor, "args", ()),
+                                                        **getattr(ctor, "keywords", {}))
+            if all(getattr(inner, k, None) == v for k, v in bound.arguments.items()):
+                return env_id
+    return None
+
+
 def check_environment(dataset: Dataset, env: Any, *, name: str = "dataset") -> Dataset:
     """Refuse ``dataset`` for environment ``env`` (an object with ``observation_size``,
-    ``action_size`` and ``action_limit``, e.g. from :func:`envs.make`) unless its observation
-    and action sizes match and its actions lie in the environment's action box."""
+    ``action_size`` and ``action_limit``, e.g. from :func:`envs.make`) unless the environment id
+    it was collected on (``metadata["env"]``) is ``env``'s (:func:`environment_id`), its
+    observation and action sizes match and its actions lie in the environment's action box. A
+    dataset without a recorded id is checked on sizes only, with a warning."""
     validate(dataset, name=name)
+    from envs.registry import BRAX_NAMES  # lazy: holding an env means envs is loaded already
+    recorded, target = dataset.metadata.get("env"), environment_id(env)
+    label = target or type(env).__name__
+    if recorded is None:
+        warnings.warn(f"{name} records no environment id (metadata['env']); only its sizes are "
+                      f"checked against {label}", UserWarning, stacklevel=2)
+    elif target is not None and BRAX_NAMES.get(str(recorded), str(recorded)) != target:
+        raise ValueError(f"{name} was collected on {recorded}, the learner's environment is "
+                         f"{target}")
     for what, have, want in (("observation size", dataset.observation_size,
                               int(env.observation_size)),
                              ("action size", dataset.action_size, int(env.action_size))):
         if have != want:
-            raise ValueError(f"{name} has {what} {have}, but the environment "
-                             f"{dataset.metadata.get('env', type(env).__name__)!r} expects {want}")
+            raise ValueError(f"{name} has {what} {have}, but the environment {label!r} expects "
+                             f"{want}")
     limit = float(getattr(env, "action_limit", np.inf))
     if dataset.size and np.abs(np.asarray(dataset.actions)).max() > limit * (1 + 1e-6):
         raise ValueError(f"{name}.actions leave the environment's action space [-{limit}, "
@@ -291,6 +319,7 @@ __all__ = [
     "check_environment",
     "create",
     "dense_episode_ids",
+    "environment_id",
     "is_traced",
     "renumber_episodes",
     "validate",

@@ -217,7 +217,8 @@ def _train_cell(args: Any, cell: str, name: str, trainer: Trainer,
                 evaluator: evaluate.Evaluator) -> tuple[dict[str, Any], float, float, Any]:
     """Train one cell's seeds (checkpointed, with a learning curve if asked) and evaluate the
     last iterate: ``(per-seed evaluation, train seconds, evaluation seconds, checkpoint
-    folder)``; the caller removes the folder once the row is written."""
+    folder)``; the caller removes the folder once the row is written. A diverging seed raises
+    :class:`mjxrmp.divergence.DivergenceError` (no row is written for the cell)."""
     t0 = time.perf_counter()
     progress = progress_printer(name, args.steps, t0)
 
@@ -230,7 +231,8 @@ def _train_cell(args: Any, cell: str, name: str, trainer: Trainer,
     curve = LearningCurve(score, curve_path(ckpt)) if args.curve else None
     state = train_program(trainer, seed_keys(range(args.seeds)), args.chunk,
                           progress if curve is None else curve.after(progress), ckpt,
-                          {"program": cell})
+                          {"program": cell}, name=name,
+                          runs=[f"seed {s}" for s in range(args.seeds)])
     train_s = time.perf_counter() - t0
     ev = score(state)[0]
     eval_s = time.perf_counter() - t0 - train_s

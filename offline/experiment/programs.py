@@ -131,7 +131,8 @@ def remove_program_checkpoints(checkpoint_dir: Path | None) -> None:
 def train_program(trainer: Trainer, keys: Any, chunk: int,
                   on_chunk: Callable[[Any, dict, int], None] | None = None,
                   checkpoint_dir: Path | None = None, meta: Mapping[str, Any] | None = None,
-                  betas: Sequence[float] | None = None) -> Any:
+                  betas: Sequence[float] | None = None, *, name: str = "offline learner",
+                  runs: Sequence[str] | None = None) -> Any:
     """Train the runs ``keys`` (at ``betas``, :func:`offline.experiment.run.init_runs`) in chunks
     (:func:`offline.experiment.run.train_chunked`) and return the final state. With
     ``checkpoint_dir`` the state is saved there after every chunk (:mod:`agents.run.checkpoint`:
@@ -139,7 +140,10 @@ def train_program(trainer: Trainer, keys: Any, chunk: int,
     started again with the same folder continues from its newest checkpoint instead of step 0,
     so a run stopped by a time limit loses at most one chunk. A checkpoint whose meta differs
     from ``meta`` is refused (:class:`agents.run.checkpoint.IncompatibleCheckpointError`). The
-    caller removes the folder once the program's results are written."""
+    caller removes the folder once the program's results are written. A run that diverges
+    raises :class:`mjxrmp.divergence.DivergenceError` (``name``, ``runs``: the labels of
+    :func:`~offline.experiment.run.train_chunked`) before its chunk is saved, so the folder keeps
+    the last finite checkpoints."""
     meta = dict(meta or {})
     start = 0
     if checkpoint_dir is not None and checkpoint.latest_step(checkpoint_dir) is not None:
@@ -156,8 +160,8 @@ def train_program(trainer: Trainer, keys: Any, chunk: int,
         if on_chunk is not None:
             on_chunk(st, means, done)
 
-    state, _ = train_chunked(trainer, keys, chunk, after_chunk, state=state,
-                                        start=start)
+    state, _ = train_chunked(trainer, keys, chunk, after_chunk, state=state, start=start,
+                             name=name, runs=runs)
     return state
 
 

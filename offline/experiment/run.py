@@ -13,6 +13,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from mjxrmp.divergence import guard_finite_series, guard_finite_tree
 from offline.data import dataset as odata
 from offline.data import scenarios
 from offline.learners.base import Trainer
@@ -52,12 +53,21 @@ def build(learner: str, dynamics: odata.Dataset, reward_data: scenarios.RewardDa
 
 def train_chunked(trainer: Trainer, keys: jax.Array, chunk: int,
                   on_chunk: Callable[[Any, dict, int], None] | None = None,
-                  state: Any = None, start: int = 0) -> tuple[Any, dict[str, np.ndarray]]:
+                  state: Any = None, start: int = 0, *, name: str = "offline learner",
+                  runs: Sequence[str] | None = None) -> tuple[Any, dict[str, np.ndarray]]:
     """Train the seeds ``keys`` (vmapped) for ``trainer.num_steps`` steps in compiled chunks
     of ``chunk`` steps (the last one shorter), from ``state`` at step ``start`` (default: a fresh
     ``init``). After each chunk ``on_chunk(state, chunk_metrics, steps_done)`` is called (progress,
     logging, checkpoints). Returns the final state and the per-chunk means of every metric,
-    shape ``(chunks, seeds)``."""
+    shape ``(chunks, seeds)``.
+
+    **Divergence guard** (docs/design.md §5.5): after each chunk, before ``on_chunk``, a non-finite
+    metric or state leaf (parameters, targets, optimiser moments) raises
+    :class:`mjxrmp.divergence.DivergenceError` naming ``name``, the gradient step (the first
+    non-finite metric's, else the chunk's last), the run (``runs[i]``, default ``run <i>``) and
+    the quantity (the metric, or the leaf's path such as ``state.params['critic']…``); so no
+    non-finite state reaches ``on_chunk`` (its checkpoints and logs keep the last finite
+    chunk)."""
     if not (isinstance(chunk, int) and chunk >= 1):
         raise ValueError(f"chunk must be a positive integer, got {chunk!r}")
     if state is None:
@@ -70,6 +80,10 @@ def train_chunked(trainer: Trainer, keys: jax.Array, chunk: int,
         state, metrics = run(state, n)
         done += n
         means = {k: np.asarray(jax.numpy.mean(v, axis=1)) for k, v in metrics.items()}
+        if not all(np.isfinite(v).all() for v in means.values()):
+            guard_finite_series(metrics, name, start=done - n, unit="gradient step", runs=runs)
+        guard_finite_tree(state, name, done, unit="gradient step", runs=runs, prefix="state",
+                          batched=True)
         for k, v in means.items():
             history.setdefault(k, []).append(v)
         if on_chunk is not None:

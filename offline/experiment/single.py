@@ -39,14 +39,18 @@ from offline.learners.base import actor_params
 from offline.learners.registry import BETA_LEARNERS, LEARNERS, Budget
 
 #: The command line of ``scripts/train_offline.py``.
+#: The environment trained on when neither ``--env`` nor a dataset names one.
+DEFAULT_ENV = "three_link/env3"
+
 OPTIONS = (
     Option(("--learner",), dict(required=True, choices=LEARNERS)),
     Option(("--scenario",), dict(default=None, choices=scenarios.SCENARIOS)),
     Option(("--dataset",), dict(type=Path, default=None,
                                 help="dataset file (scripts/collect.py)")),
     Option(("--expert",), dict(type=Path, default=None, help="expert dataset file (scenarios)")),
-    Option(("--env",), dict(default="three_link/env3",
-                            help="environment to collect on when no --dataset is given")),
+    Option(("--env",), dict(default=None, help=(
+        "environment to train on; default: the --dataset's recorded environment, else "
+        f"{DEFAULT_ENV} (collected on when no --dataset is given)"))),
     Option(("--recipe",), dict(default="mixed", help="recipe collected without --dataset")),
     Option(("--scale",), dict(type=int, default=8, help="episodes per source when collecting")),
     Option(("--seeds",), dict(type=int, nargs="+", default=[0, 1])),
@@ -97,10 +101,13 @@ def load_data(args: Any) -> tuple[str, odata.Dataset, scenarios.RewardData | Non
             return odata.load(path)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # the documented no-PPO fallback
-            return collect.collect_recipe(args.env, recipe, args.scale, seed=args.data_seed)
+            return collect.collect_recipe(args.env or DEFAULT_ENV, recipe, args.scale,
+                                          seed=args.data_seed)
 
     data = get(args.dataset, args.recipe)
-    env = data.metadata.get("env", args.env)
+    # an explicit --env is the learner's environment: check_environment refuses a dataset
+    # recorded on another one (naming both)
+    env = args.env or data.metadata.get("env", DEFAULT_ENV)
     odata.check_environment(data, make_env(env), name=str(args.dataset or "dataset"))
     if args.scenario is None:
         if args.remove_terminals:
@@ -108,9 +115,6 @@ def load_data(args: Any) -> tuple[str, odata.Dataset, scenarios.RewardData | Non
         return env, data, None
     expert = odata.check_environment(get(args.expert, "expert"), make_env(env),
                                      name=str(args.expert or "expert"))
-    if expert.metadata.get("env", env) != env:
-        raise SystemExit(f"--expert was collected on {expert.metadata.get('env')!r}, the "
-                         f"dataset on {env!r}")
     dyn, rd = scenarios.make(args.scenario, data, expert,
                              key=jax.random.PRNGKey(args.data_seed),
                              keep_terminals=not args.remove_terminals)
@@ -140,7 +144,11 @@ def _metrics_writer(path: Path, runs: list[tuple[int, float | None]], labels: li
 
 def train(args: Any) -> dict[str, Any]:
     """Train (checkpointed, resumable), evaluate and write ``result.json``; return the result
-    (the run's configuration, wall times, device, reference returns and per-run evaluation)."""
+    (the run's configuration, wall times, device, reference returns and per-run evaluation).
+    A run whose loss or parameters turn non-finite raises
+    :class:`mjxrmp.divergence.DivergenceError` (learner, gradient step, seed and quantity):
+    ``metrics.csv`` and ``checkpoints/`` end at the last finite chunk, nothing is evaluated and
+    ``result.json`` is not written."""
     t_start = time.perf_counter()
     env, dyn, rd = load_data(args)
     budget = Budget(steps=args.steps, hidden=tuple(args.hidden), batch=args.batch,
@@ -169,11 +177,14 @@ def train(args: Any) -> dict[str, Any]:
     try:
         state = train_program(trainer, seed_keys(run_seeds), args.chunk,
                               _metrics_writer(csv_path, runs, labels, bar), ckpt_dir, meta,
-                              run_betas)
+                              run_betas, name=args.learner, runs=[
+                                  f"seed {s}" + ("" if b is None else f", β {b:g}")
+                                  for s, b in runs])
     except checkpoint.IncompatibleCheckpointError as err:
         raise SystemExit(f"--resume: {err}") from None
-    if bar is not None:
-        bar.close()
+    finally:
+        if bar is not None:
+            bar.close()
     train_s = time.perf_counter() - t_train
     evaluator = evaluate.make_evaluator(env, args.eval_episodes)
     ev = jax.vmap(lambda p: evaluator.evaluate(trainer.act, p, jax.random.PRNGKey(10_000)))(

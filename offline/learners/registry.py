@@ -65,6 +65,7 @@ from mjxrmp.config import (
     check_int,
     check_sizes,
 )
+from mjxrmp.divergence import guard_finite_series, guard_finite_tree
 from offline.data import dataset as odata
 from offline.data import scenarios
 from offline.learners import atac, bc, cql, iql, mahalo, plfo_baselines
@@ -180,9 +181,14 @@ def inverse_labelled(dynamics: odata.Dataset, reward_data: scenarios.RewardData,
                      budget: Budget) -> odata.Dataset:
     """``D_R`` with actions predicted by an inverse-dynamics model fitted on ``D_A``
     (``budget.steps`` steps, key ``budget.inverse_seed``, states standardised with ``D_A``'s
-    statistics when ``budget.normalize_observations``) — AP's dataset."""
+    statistics when ``budget.normalize_observations``) — AP's dataset. A model whose loss or
+    parameters turn non-finite raises :class:`mjxrmp.divergence.DivergenceError`."""
     trainer = make_inverse_dynamics(dynamics, inverse_config(budget))
-    state, _ = jax.jit(trainer.train)(jax.random.PRNGKey(budget.inverse_seed))
+    state, metrics = jax.jit(trainer.train)(jax.random.PRNGKey(budget.inverse_seed))
+    what = "AP's inverse-dynamics model"
+    guard_finite_series({k: np.asarray(v)[None] for k, v in metrics.items()}, what,
+                        unit="gradient step")
+    guard_finite_tree(state.params, what, trainer.num_steps, unit="gradient step")
     labelled = label_actions(trainer.model(state), reward_data)
     return jax.tree.map(np.asarray, labelled)
 

@@ -148,7 +148,7 @@ def _train_program(args: Any, name: str, learner: str, cell_rewards: Sequence[st
     on_chunk = progress if curve is None else curve.after(progress)
     beta = beta_of(learner, args)
     state = train_program(trainer, keys, args.chunk, on_chunk, ckpt, {"program": program},
-                          None if beta is None else [beta] * runs)
+                          None if beta is None else [beta] * runs, name=f"{name} {learner}")
     jax.block_until_ready(state)
     train_s = time.perf_counter() - t0
     groups = evaluation(trainer.act, sweep.run_actor_params(state), args.seeds)

@@ -126,7 +126,7 @@ def test_reset_step_jit_vmap(rollout_a):
     assert reward.shape == (40, 3) and done.shape == (40, 3)
     assert np.all(np.isfinite(np.asarray(obs))) and np.all(np.isfinite(np.asarray(reward)))
     assert np.all((np.asarray(reward) >= -5.0) & (np.asarray(reward) <= 1.0))
-    assert state.obs.shape == (3, 26) and state.info["qd_virtual"].shape == (3, 3)
+    assert state.obs.shape == (3, 26) and ENV.virtual_velocity(state).shape == (3, 3)
     for key in ("goal_distance", "success", "collision", "nonfinite", "min_obstacle_distance",
                 "tracking_error"):
         assert state.metrics[key].shape == (3,)
