@@ -1,17 +1,31 @@
-"""XLA settings every CPU entry point needs (docs/design.md §5.2).
+"""XLA settings every CPU entry point needs (docs/design.md §5.2) and the scripts' compile cache.
 
 With jaxlib 0.7.1–0.10.x, XLA:CPU's fusion emitters make MJX kinematics of deep chains extremely
 slow (seconds per step for the Franka); disabling them restores millisecond steps. The flag is read
 when the first backend initialises, so it must be set before any JAX computation runs. jaxlib 0.11
 removed the flag (and aborts on unknown XLA flags), so it is only set where jaxlib knows it.
+
+Scripts also turn on JAX's persistent compilation cache (docs/design.md §5.6), so a repeated or
+resumed command loads its compiled programs instead of compiling them again. Importing the
+library does not: only :func:`configure_script`, which every script calls, does.
 """
 
 from __future__ import annotations
 
 import os
+import sys
+from collections.abc import Mapping
 from importlib import metadata
 
 CPU_FLAG = "--xla_cpu_use_fusion_emitters=false"
+#: Environment variable choosing the scripts' compile cache: a directory, or off/0/false.
+CACHE_ENV = "MJXRMP_COMPILE_CACHE"
+CACHE_OFF = ("off", "0", "false")
+#: JAX's own variables; a user who sets the directory keeps full control of the cache.
+JAX_CACHE_DIR_ENV = "JAX_COMPILATION_CACHE_DIR"
+JAX_MIN_TIME_ENV = "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"
+#: Compiles shorter than this are not cached (JAX's default, 1 s, would skip most CPU programs).
+MIN_COMPILE_TIME_S = 0.2
 
 
 def _jaxlib_version() -> tuple[int, ...]:
@@ -39,3 +53,56 @@ def cpu_xla_flags(flags: str | None = None) -> str:
 def configure_cpu_flags() -> None:
     """Set ``XLA_FLAGS`` for CPU runs (idempotent; a no-op on jaxlib without the flag)."""
     os.environ["XLA_FLAGS"] = cpu_xla_flags()
+
+
+def compile_cache_dir(environ: Mapping[str, str] | None = None) -> str | None:
+    """The directory the scripts' compile cache goes to, or ``None`` when there is none to set.
+
+    ``None`` when the user set ``JAX_COMPILATION_CACHE_DIR`` (JAX then uses theirs) or
+    ``MJXRMP_COMPILE_CACHE`` is ``off``/``0``/``false``; a directory given in
+    ``MJXRMP_COMPILE_CACHE``; otherwise ``$XDG_CACHE_HOME/mjxrmp/jax`` (``~/.cache/mjxrmp/jax``
+    where ``XDG_CACHE_HOME`` is unset or not absolute). ``environ`` defaults to ``os.environ``.
+    """
+    env = os.environ if environ is None else environ
+    if env.get(JAX_CACHE_DIR_ENV):
+        return None
+    choice = env.get(CACHE_ENV, "").strip()
+    if choice.lower() in CACHE_OFF:
+        return None
+    if choice:
+        return os.path.abspath(os.path.expanduser(choice))
+    xdg = env.get("XDG_CACHE_HOME", "")
+    base = xdg if os.path.isabs(xdg) else os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "mjxrmp", "jax")
+
+
+def configure_compile_cache() -> str | None:
+    """Turn JAX's persistent compilation cache on in :func:`compile_cache_dir`; return that path.
+
+    Sets ``JAX_COMPILATION_CACHE_DIR`` (inherited by child processes) and, unless the user set it,
+    a minimum compile time of :data:`MIN_COMPILE_TIME_S`; where JAX is already imported, also its
+    config. A directory that cannot be created leaves the cache off with one warning line.
+    """
+    path = compile_cache_dir()
+    if path is None:
+        return None
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError as err:
+        print(f"warning: compile cache off: cannot create {path} ({err.strerror}); "
+              f"set {CACHE_ENV}=DIR or {CACHE_ENV}=off", file=sys.stderr)
+        return None
+    os.environ[JAX_CACHE_DIR_ENV] = path
+    os.environ.setdefault(JAX_MIN_TIME_ENV, str(MIN_COMPILE_TIME_S))
+    jax = sys.modules.get("jax")
+    if jax is not None:  # imported already: it read the environment at import time
+        jax.config.update("jax_compilation_cache_dir", path)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs",
+                          float(os.environ[JAX_MIN_TIME_ENV]))
+    return path
+
+
+def configure_script() -> None:
+    """What every script runs before compiling: the CPU flags and the compile cache."""
+    configure_cpu_flags()
+    configure_compile_cache()

@@ -39,7 +39,7 @@ from pathlib import Path
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-import mjxrmp  # noqa: F401  (sets the XLA:CPU flag before JAX initialises)
+from mjxrmp import _xla  # sets the XLA:CPU flag before JAX initialises
 
 # isort: split
 from agents.bench.rmp2 import ROBOTS
@@ -54,6 +54,8 @@ from agents.bench.run import (
     run_benchmark,
 )
 from offline.experiment.bench import measure as measure_offline
+
+_xla.configure_script()  # XLA:CPU flag and compile cache (docs/design.md §5.6)
 
 ROOT = Path(__file__).resolve().parent.parent
 

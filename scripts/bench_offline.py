@@ -36,12 +36,14 @@ from pathlib import Path
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-import mjxrmp  # noqa: F401  (sets the XLA:CPU flag before JAX initialises)
+from mjxrmp import _xla  # sets the XLA:CPU flag before JAX initialises
 
 # isort: split
 import jax
 
 from offline.experiment.bench import LEARNERS, device_slug, run_benchmark
+
+_xla.configure_script()  # XLA:CPU flag and compile cache (docs/design.md §5.6)
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -29,11 +29,13 @@ from collections.abc import Sequence
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-import mjxrmp  # noqa: F401  (sets the XLA:CPU flag before JAX initialises)
+from mjxrmp import _xla  # sets the XLA:CPU flag before JAX initialises
 
 # isort: split
 from offline.data import collect as oc
 from offline.data import dataset as odata
+
+_xla.configure_script()  # XLA:CPU flag and compile cache (docs/design.md §5.6)
 
 
 def _parser() -> argparse.ArgumentParser:

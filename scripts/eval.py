@@ -35,7 +35,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from mjxrmp import _xla
 
-_xla.configure_cpu_flags()
+_xla.configure_script()
 
 from agents.run.checkpoint import IncompatibleCheckpointError  # noqa: E402
 from agents.run.eval_report import evaluate_runs, format_table  # noqa: E402

@@ -28,11 +28,13 @@ from pathlib import Path
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-import mjxrmp  # noqa: F401  (sets the XLA:CPU flag before JAX initialises)
+from mjxrmp import _xla  # sets the XLA:CPU flag before JAX initialises
 
 # isort: split
 from agents.ppo import KINDS
 from agents.run.export import EXPORTABLE_ENVS, MATMUL_PRECISIONS, export_run
+
+_xla.configure_script()  # XLA:CPU flag and compile cache (docs/design.md §5.6)
 
 
 def main(argv: list[str] | None = None) -> int:

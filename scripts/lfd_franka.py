@@ -34,9 +34,9 @@ import time
 if __package__ in (None, ""):
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from mjxrmp._xla import configure_cpu_flags
+from mjxrmp import _xla
 
-configure_cpu_flags()
+_xla.configure_script()
 
 import jax  # noqa: E402
 

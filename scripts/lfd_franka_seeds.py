@@ -23,7 +23,10 @@ if __package__ in (None, ""):
 
 from agents.lfd.figures import plot_seeds
 from agents.lfd.seeds import load_runs, markdown, summarise
+from mjxrmp import _xla
 from mjxrmp.results.summary import write_text
+
+_xla.configure_script()  # XLA:CPU flag and compile cache (docs/design.md §5.6)
 
 
 def main(argv: list[str] | None = None) -> dict:

@@ -41,12 +41,14 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import jax
 import numpy as np
 
-import mjxrmp  # noqa: F401  (sets XLA flags before any JAX computation)
 from agents.lfd.config import LfdConfig
 from agents.lfd.figures import plot_lasa
 from agents.lfd.lasa_eval import canonical_shapes, evaluate_shapes, time_epochs
+from mjxrmp import _xla  # sets the XLA:CPU flag before JAX initialises
 from mjxrmp.data.lasa import LASA_SHAPES
 from mjxrmp.divergence import EXIT_DIVERGED, DivergenceError
+
+_xla.configure_script()  # XLA:CPU flag and compile cache (docs/design.md §5.6)
 
 log = functools.partial(print, flush=True)
 

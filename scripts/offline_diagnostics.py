@@ -28,10 +28,12 @@ from collections.abc import Sequence
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-import mjxrmp  # noqa: F401  (sets the XLA:CPU flag before JAX initialises)
+from mjxrmp import _xla  # sets the XLA:CPU flag before JAX initialises
 
 # isort: split
 from offline.experiment import diagnostics
+
+_xla.configure_script()  # XLA:CPU flag and compile cache (docs/design.md §5.6)
 
 OUT_DIR = os.path.join("runs", "offline_diagnostics")
 SUBSTEPS_HELP = ("physics substeps per control step (default: the environment's own); the "

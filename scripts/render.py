@@ -16,6 +16,9 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from envs.render import render_rollout
+from mjxrmp import _xla
+
+_xla.configure_script()  # XLA:CPU flag and compile cache (docs/design.md §5.6)
 
 
 def main(argv: list[str] | None = None) -> str:

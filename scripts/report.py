@@ -10,8 +10,11 @@ import argparse
 import sys
 from pathlib import Path
 
+from mjxrmp import _xla
 from mjxrmp.results.report import render_all, stale_files
 from mjxrmp.results.summary import SummaryError, write_text
+
+_xla.configure_script()  # XLA:CPU flag and compile cache (docs/design.md §5.6)
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -16,8 +16,11 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
+from mjxrmp import _xla
 from mjxrmp.studies import ch3
 from mjxrmp.studies.ch3_figures import SAVE_KWARGS, figures
+
+_xla.configure_script()  # XLA:CPU flag and compile cache (docs/design.md §5.6)
 
 
 def main(argv: list[str] | None = None) -> dict:

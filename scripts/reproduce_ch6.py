@@ -33,10 +33,12 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-import mjxrmp  # noqa: F401  (sets the XLA:CPU flag before JAX initialises)
+from mjxrmp import _xla  # sets the XLA:CPU flag before JAX initialises
 
 # isort: split
 from agents.run.ch6 import ENVS, LABELS, POLICIES, reproduce
+
+_xla.configure_script()  # XLA:CPU flag and compile cache (docs/design.md §5.6)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -29,7 +29,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from mjxrmp import _xla
 
-_xla.configure_cpu_flags()
+_xla.configure_script()
 
 import jax  # noqa: E402
 

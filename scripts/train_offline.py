@@ -41,11 +41,13 @@ from collections.abc import Sequence
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-import mjxrmp  # noqa: F401  (sets the XLA:CPU flag before JAX initialises)
+from mjxrmp import _xla  # sets the XLA:CPU flag before JAX initialises
 
 # isort: split
 from mjxrmp.divergence import EXIT_DIVERGED, DivergenceError
 from offline.experiment import single
+
+_xla.configure_script()  # XLA:CPU flag and compile cache (docs/design.md §5.6)
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:

@@ -1,0 +1,173 @@
+"""Where a control step's time goes: each phase of a reaching environment's control step timed
+alone at one batch size, against the physics floor (docs/reports/performance.md).
+
+Phases, each a compiled ``lax.scan`` over ``steps`` control steps of ``batch`` environments and
+reported per control step:
+
+* ``physics`` — raw ``mjx.step`` × ``substeps`` with the servo targets held, on the model as
+  generated (:data:`PHYSICS_VARIANTS` ``as_is``), with the constraint, contact, equality,
+  friction-loss and limit stages disabled (``contact_free``), and the same with one solver
+  iteration (``contact_free_1iter``): the floor the environment is compared with;
+* ``env_step_raw`` — the environment's own ``step`` (PD scheme, geometry, reward, observation)
+  with a zero action, no wrappers;
+* ``env_step`` — the training ``envs.wrappers.wrap`` step (episode limit and auto-reset);
+* ``reset`` — one full ``reset`` of every environment (scene sampling with rejection);
+* ``observe`` — geometry, observation and goal metrics alone;
+* ``rmp2_policy`` — the hand-designed RMP² policy's forward alone.
+
+:func:`limit_excursions` rolls the hand-designed policy out with the model as generated and with
+the contact-free one from the same scenes: how far joint limits are exceeded under each and how
+far the trajectories drift apart (the check before a stage may be dropped).
+"""
+
+from __future__ import annotations
+
+import copy
+import functools
+import statistics
+import time
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from mujoco import mjx
+
+import envs
+from envs.evaluate import hand_designed_policy
+from envs.wrappers import wrap
+
+#: The MJX model variants timed as the physics floor.
+PHYSICS_VARIANTS = ("as_is", "contact_free", "contact_free_1iter")
+
+_FREE_FLAGS = ("mjDSBL_CONSTRAINT", "mjDSBL_CONTACT", "mjDSBL_EQUALITY", "mjDSBL_FRICTIONLOSS",
+               "mjDSBL_LIMIT")
+
+
+def physics_model(mj_model: mujoco.MjModel, variant: str) -> mjx.Model:
+    """The MJX model of ``mj_model`` in :data:`PHYSICS_VARIANTS` ``variant``."""
+    if variant not in PHYSICS_VARIANTS:
+        raise ValueError(f"variant must be one of {PHYSICS_VARIANTS}, got {variant!r}")
+    m = copy.deepcopy(mj_model)
+    if variant != "as_is":
+        for flag in _FREE_FLAGS:
+            m.opt.disableflags |= int(getattr(mujoco.mjtDisableBit, flag))
+    if variant == "contact_free_1iter":
+        m.opt.iterations = 1
+    return mjx.put_model(m)
+
+
+def time_phase(fn: Callable[[], Any], steps: int, repeats: int) -> dict[str, float]:
+    """Compile time and the median (min, max) wall time per control step of ``fn``."""
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn())
+    compile_s = time.perf_counter() - t0
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        times.append((time.perf_counter() - t0) / steps)
+    return {"per_step_s": statistics.median(times), "min_s": min(times), "max_s": max(times),
+            "compile_s": compile_s}
+
+
+def _data_like(model: mjx.Model, data: mjx.Data, batch: int) -> mjx.Data:
+    """A batch of ``model``'s data (its constraint arrays sized for it) with the joint state and
+    controls of ``data``."""
+    fresh = jax.vmap(lambda _: mjx.make_data(model))(jnp.arange(batch))
+    return fresh.replace(qpos=data.qpos, qvel=data.qvel, ctrl=data.ctrl)
+
+
+def _scan(body: Callable[[Any], Any], steps: int) -> Callable[[Any], Any]:
+    """``carry -> carry`` after ``steps`` applications of ``body``, jitted."""
+    return jax.jit(lambda c: jax.lax.scan(lambda c, _: (body(c), None), c, None,
+                                          length=steps)[0])
+
+
+def _fed_back(fn: Callable[[Any], Any], state: Any, steps: int) -> Callable[[], Any]:
+    """``steps`` evaluations of ``fn(state)``, each output fed back into the joint positions at
+    1e-9 scale so that no evaluation is loop-invariant (XLA would hoist it out of the loop)."""
+    def body(s):
+        y = jnp.mean(jnp.concatenate([jnp.ravel(x) for x in jax.tree.leaves(fn(s))]))
+        data = s.pipeline_state
+        return s.replace(pipeline_state=data.replace(qpos=data.qpos + 1e-9 * jnp.tanh(y)))
+
+    program = _scan(body, steps)
+    return lambda: program(state)
+
+
+def phase_programs(env_name: str, batch: int, steps: int, key: jax.Array
+              ) -> dict[str, Callable[[], Any]]:
+    """``{phase: fn}``: the programs of the module docstring, each a call ``fn()`` of ``steps``
+    control steps of ``batch`` environments, closed over its input."""
+    base = envs.make(env_name)
+    wrapped = wrap(base)
+    keys = jax.random.split(key, batch)
+    state = jax.jit(jax.vmap(base.reset))(keys)
+    wstate = jax.jit(wrapped.reset)(keys)
+    zero = jnp.zeros((batch, base.action_size), jnp.float32)
+    data = state.pipeline_state
+    out: dict[str, Callable[[], Any]] = {}
+    for variant in PHYSICS_VARIANTS:
+        model = physics_model(base.mj_model, variant)
+        # the substeps as the environment runs them (a scan), so loop overheads match
+        sub = jax.vmap(lambda d, m=model: jax.lax.scan(
+            lambda d, _: (mjx.step(m, d), None), d, None, length=base.substeps)[0])
+        out[f"physics_{variant}"] = functools.partial(_scan(sub, steps),
+                                                      _data_like(model, data, batch))
+    raw = _scan(lambda s: jax.vmap(base.step)(s, zero), steps)
+    out["env_step_raw"] = lambda: raw(state)
+    stepped = _scan(lambda s: wrapped.step(s, zero), steps)
+    out["env_step"] = lambda: stepped(wstate)
+    # reset stores the next key in info["rng"]: each call draws new scenes (nothing to hoist)
+    resets = _scan(lambda s: jax.vmap(base.reset)(s.info["rng"]), steps)
+    out["reset"] = lambda: resets(state)
+
+    def observe(s):
+        q, qd, goal, obs = base.policy_inputs(s)
+        o = base.observe(q, qd, goal, obs)
+        return o, base._goal_metrics(q, goal)["goal_distance"] + base._robot_clearance(q, obs)
+
+    out["observe"] = _fed_back(jax.vmap(observe), state, steps)
+    out["rmp2_policy"] = _fed_back(jax.vmap(hand_designed_policy(base)), state, steps)
+    return out
+
+
+def limit_excursions(env_name: str, episodes: int, steps: int, key: jax.Array
+                     ) -> dict[str, float]:
+    """The hand-designed policy over ``episodes`` scenes × ``steps`` control steps, with the
+    model as generated and with the contact-free model (same scenes, no auto-reset):
+    ``max_excess_<variant>`` (rad beyond a joint limit, 0 if never), ``max_abs_dq`` (largest
+    joint-position difference between the two runs) and ``final_abs_dq_p99``."""
+    base = envs.make(env_name)
+    policy = hand_designed_policy(base)
+    lo = jnp.where(jnp.isfinite(base._q_lower), base._q_lower, -jnp.inf)
+    hi = base._q_upper
+
+    def run(model):
+        def one(k):
+            s = base.reset(k)
+
+            def body(s, _):
+                s = base.step(s, policy(s))
+                q = s.pipeline_state.qpos
+                return s, (q, jnp.max(jnp.maximum(q - hi, lo - q)))
+            return jax.lax.scan(body, s, None, length=steps)[1]
+        base.mjx_model, base._data0 = model, mjx.make_data(model)
+        return jax.jit(jax.vmap(one))(jax.random.split(key, episodes))
+
+    as_is, data0 = base.mjx_model, base._data0
+    q_a, ex_a = run(as_is)
+    q_f, ex_f = run(physics_model(base.mj_model, "contact_free"))
+    base.mjx_model, base._data0 = as_is, data0
+    dq = jnp.max(jnp.abs(q_a - q_f), axis=-1)
+    return {"episodes": episodes, "steps": steps,
+            "max_excess_as_is": float(jnp.maximum(jnp.max(ex_a), 0.0)),
+            "max_excess_contact_free": float(jnp.maximum(jnp.max(ex_f), 0.0)),
+            "max_abs_dq": float(jnp.max(dq)),
+            "final_abs_dq_p99": float(jnp.percentile(dq[:, -1], 99))}
+
+
+__all__ = ["PHYSICS_VARIANTS", "limit_excursions", "phase_programs",
+           "physics_model", "time_phase"]

@@ -1,0 +1,142 @@
+"""The control-step profile of the reaching environments (docs/reports/performance.md):
+phase timings (:mod:`agents.bench.phases`), GPU kernels per control step from
+``jax.profiler`` traces, and the joint-limit check of the contact-free model, written as the
+``performance`` study (``results/performance/summary.json``).
+
+:func:`kernel_stats` runs a compiled phase under ``jax.profiler.trace`` (with a Perfetto trace)
+and counts the kernels on the GPU's compute streams and their busy time; at a few hundred
+environments a control step is bounded by kernel launches rather than arithmetic, so the kernel
+count is the quantity to cut.
+"""
+
+from __future__ import annotations
+
+import collections
+import glob
+import gzip
+import json
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import jax
+
+from agents.bench.phases import limit_excursions, phase_programs, time_phase
+from mjxrmp.results.summary import run_record, write_summary, write_text
+
+#: Phases whose kernels are counted (the rest are timed only).
+TRACED = ("physics_as_is", "physics_contact_free", "env_step_raw", "env_step")
+
+
+def _gpu_kernels(trace_path: str) -> tuple[int, float]:
+    """``(kernels, busy µs)`` on the GPU stream threads of a Perfetto ``trace.json.gz``."""
+    with gzip.open(trace_path) as f:
+        events = json.load(f)
+    events = events["traceEvents"] if isinstance(events, dict) else events
+    procs, threads = {}, {}
+    for e in events:
+        if e.get("ph") == "M" and e.get("name") == "process_name":
+            procs[e["pid"]] = e["args"]["name"]
+        elif e.get("ph") == "M" and e.get("name") == "thread_name":
+            threads[(e["pid"], e["tid"])] = e["args"]["name"]
+    gpu = {p for p, name in procs.items() if "/device:GPU" in name}
+    kernels = [e for e in events if e.get("ph") == "X" and e.get("pid") in gpu
+               and "Stream" in threads.get((e["pid"], e["tid"]), "")]
+    return len(kernels), float(sum(e.get("dur", 0.0) for e in kernels))
+
+
+def kernel_stats(fn: Any, steps: int) -> dict[str, float] | None:
+    """Kernels and GPU busy µs per control step of ``fn()`` (``steps`` control steps, already
+    compiled), from a ``jax.profiler`` trace; None on a machine without a GPU."""
+    if jax.devices()[0].platform != "gpu":
+        return None
+    with tempfile.TemporaryDirectory() as d:
+        with jax.profiler.trace(d, create_perfetto_trace=True):
+            jax.block_until_ready(fn())
+        traces = glob.glob(f"{d}/**/*.trace.json.gz", recursive=True)
+        if not traces:
+            raise RuntimeError(f"jax.profiler wrote no Perfetto trace under {d}")
+        count, busy = _gpu_kernels(traces[0])
+    return {"kernels_per_step": count / steps, "busy_us_per_step": busy / steps}
+
+
+def profile_env(env_name: str, batch: int, steps: int, repeats: int, episodes: int,
+                horizon: int, key: jax.Array) -> dict[str, Any]:
+    """Phase timings, kernel counts and the joint-limit check for one environment."""
+    k_phase, k_limit = jax.random.split(key)
+    programs = phase_programs(env_name, batch, steps, k_phase)
+    phases = {name: time_phase(fn, steps, repeats) for name, fn in programs.items()}
+    kernels = {name: kernel_stats(programs[name], steps) for name in TRACED}
+    limits = limit_excursions(env_name, episodes, horizon, k_limit) if episodes else None
+    return {"phases": phases, "kernels": kernels, "limits": limits}
+
+
+def _ms(phases: dict, name: str) -> str:
+    return f"{phases[name]['per_step_s'] * 1e3:.3f}"
+
+
+def _rows(env_name: str, r: dict[str, Any]) -> list[list[Any]]:
+    """One table row per phase: environment, phase, ms per control step, ratio to the
+    contact-free physics floor, kernels per step (— without a GPU)."""
+    floor = r["phases"]["physics_contact_free"]["per_step_s"]
+    rows = []
+    for name, t in r["phases"].items():
+        k = r["kernels"].get(name)
+        rows.append([env_name, name, f"{t['per_step_s'] * 1e3:.3f}",
+                     f"{t['per_step_s'] / floor:.2f}",
+                     "—" if k is None else f"{k['kernels_per_step']:.0f}"])
+    return rows
+
+
+def write_profile(results: dict[str, dict[str, Any]], batch: int, out_dir: Path,
+                  command: str) -> Path:
+    """``out_dir/summary.json`` and ``table.csv`` of the ``performance`` study."""
+    record = run_record(command)
+    run = "profile_" + record["device"].split()[0].lower().replace("(", "")
+    rows = [row for env_name, r in results.items() for row in _rows(env_name, r)]
+    headline = []
+    for env_name, r in results.items():
+        p = r["phases"]
+        headline.append({"run": run, "cells": [
+            f"{env_name}, {batch} environments: contact-free physics floor / physics as "
+            "generated / environment step / training step (auto-reset) / reset, ms per "
+            "control step",
+            "—",
+            " / ".join(_ms(p, n) for n in ("physics_contact_free", "physics_as_is",
+                                           "env_step_raw", "env_step", "reset"))]})
+        if r["limits"] is not None:
+            lim = r["limits"]
+            headline.append({"run": run, "cells": [
+                f"{env_name}: hand-designed policy, {lim['episodes']} episodes × "
+                f"{lim['steps']} steps, largest joint-limit excess as generated / contact-free "
+                "(rad), largest joint drift between them (rad)",
+                "—", f"{lim['max_excess_as_is']:.2g} / {lim['max_excess_contact_free']:.2g}, "
+                     f"{lim['max_abs_dq']:.3g}"]})
+    columns = ["environment", "phase", "ms per control step", "× floor", "kernels per step"]
+    summary = {"study": "performance", "title": "Control-step profile",
+               "report": "docs/reports/performance.md", "runs": {run: record},
+               "headline": {"columns": ["quantity", "thesis or peer figure", "ours"],
+                            "rows": headline},
+               "tables": {"phases": {"columns": columns, "rows": rows}},
+               "deviations": [], "raw": results}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    csv = "\n".join(",".join(str(c) for c in row) for row in [columns, *rows]) + "\n"
+    write_text(out_dir / "table.csv", csv)
+    return write_summary(out_dir / "summary.json", summary)
+
+
+def run_profile(env_names: list[str], batch: int, steps: int, repeats: int, episodes: int,
+                horizon: int, seed: int, out_dir: Path, command: str) -> Path:
+    """Profile every environment of ``env_names`` (:func:`profile_env`), printing a line per
+    environment, and write the study (:func:`write_profile`)."""
+    key = jax.random.PRNGKey(seed)
+    results = collections.OrderedDict()
+    for i, env_name in enumerate(env_names):
+        results[env_name] = profile_env(env_name, batch, steps, repeats, episodes, horizon,
+                                        jax.random.fold_in(key, i))
+        print(env_name, {k: _ms(results[env_name]["phases"], k)
+                         for k in results[env_name]["phases"]}, flush=True)
+    return write_profile(dict(results), batch, out_dir, command)
+
+
+__all__ = ["TRACED", "kernel_stats", "profile_env", "run_profile", "write_profile"]

@@ -1,0 +1,71 @@
+"""The control-step profile (agents.bench.phases, agents.bench.profile): every phase runs and
+is reported against the physics floor, the contact-free model really drops the constraint
+stages, the Perfetto kernel count reads GPU stream events only, and the study validates."""
+
+from __future__ import annotations
+
+import gzip
+import json
+
+import jax
+import mujoco
+import numpy as np
+import pytest
+
+import envs
+from agents.bench.phases import PHYSICS_VARIANTS, physics_model
+from agents.bench.profile import _gpu_kernels, profile_env, write_profile
+from mjxrmp.results.summary import load_summary
+
+
+def test_contact_free_model_disables_the_constraint_stages():
+    """``contact_free`` sets the five disable flags (and one solver iteration for
+    ``contact_free_1iter``) on a copy; the environment's own model is left alone."""
+    env = envs.make("franka")
+    before = env.mj_model.opt.disableflags
+    free = physics_model(env.mj_model, "contact_free")
+    one = physics_model(env.mj_model, "contact_free_1iter")
+    for flag in ("mjDSBL_CONSTRAINT", "mjDSBL_CONTACT", "mjDSBL_LIMIT"):
+        assert free.opt.disableflags & int(getattr(mujoco.mjtDisableBit, flag))
+    assert int(one.opt.iterations) == 1
+    assert env.mj_model.opt.disableflags == before
+    with pytest.raises(ValueError, match="variant must be one of"):
+        physics_model(env.mj_model, "fast")
+
+
+def test_profile_of_every_phase_is_written_as_a_study(tmp_path):
+    """A tiny profile on this CPU: every phase timed (positive, finite), kernels absent
+    without a GPU, the joint-limit check finite, and the study validates."""
+    r = profile_env("three_link/env3", batch=2, steps=2, repeats=1, episodes=2, horizon=3,
+                    key=jax.random.PRNGKey(0))
+    names = {f"physics_{v}" for v in PHYSICS_VARIANTS} | {
+        "env_step_raw", "env_step", "reset", "observe", "rmp2_policy"}
+    assert set(r["phases"]) == names
+    assert all(0 < t["per_step_s"] < 10 for t in r["phases"].values())
+    assert all(k is None for k in r["kernels"].values())
+    lim = r["limits"]
+    assert lim["max_excess_as_is"] >= 0 and np.isfinite(lim["max_abs_dq"])
+    path = write_profile({"three_link/env3": r}, 2, tmp_path, "python scripts/profile_step.py")
+    summary = load_summary(path)
+    assert len(summary["tables"]["phases"]["rows"]) == len(names)
+    assert (tmp_path / "table.csv").read_text().startswith("environment,phase")
+
+
+def test_kernel_count_reads_gpu_stream_events_only(tmp_path):
+    """Only complete events on a GPU process's stream threads count (host threads and CPU
+    processes do not)."""
+    events = [
+        {"ph": "M", "name": "process_name", "pid": 1, "args": {"name": "/device:GPU:0"}},
+        {"ph": "M", "name": "process_name", "pid": 2, "args": {"name": "/host:CPU"}},
+        {"ph": "M", "name": "thread_name", "pid": 1, "tid": 7,
+         "args": {"name": "Stream #14(Compute)"}},
+        {"ph": "M", "name": "thread_name", "pid": 1, "tid": 8, "args": {"name": "launcher"}},
+        {"ph": "X", "pid": 1, "tid": 7, "ts": 0, "dur": 2.0},
+        {"ph": "X", "pid": 1, "tid": 7, "ts": 3, "dur": 1.5},
+        {"ph": "X", "pid": 1, "tid": 8, "ts": 0, "dur": 9.0},
+        {"ph": "X", "pid": 2, "tid": 7, "ts": 0, "dur": 9.0},
+    ]
+    path = tmp_path / "t.trace.json.gz"
+    with gzip.open(path, "wt") as f:
+        json.dump({"traceEvents": events}, f)
+    assert _gpu_kernels(str(path)) == (2, 3.5)

@@ -1,0 +1,92 @@
+"""The scripts' persistent compilation cache (mjxrmp._xla, docs/design.md §5.6): where it lives,
+how it is switched off, that a user's own ``JAX_COMPILATION_CACHE_DIR`` wins, that importing the
+library leaves it off, and that a real script run fills it."""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import subprocess
+import sys
+
+import jax
+import pytest
+
+from mjxrmp import _xla
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+
+
+def _script_env(**extra: str) -> dict[str, str]:
+    """The test process's environment without the session's cache settings, plus ``extra``."""
+    drop = (_xla.JAX_CACHE_DIR_ENV, _xla.JAX_MIN_TIME_ENV, _xla.CACHE_ENV, "XDG_CACHE_HOME")
+    return {**{k: v for k, v in os.environ.items() if k not in drop}, **extra}
+
+
+def test_default_directory_is_under_the_home_cache(monkeypatch, tmp_path):
+    monkeypatch.setenv("HOME", str(tmp_path))
+    expected = str(tmp_path / ".cache" / "mjxrmp" / "jax")
+    assert _xla.compile_cache_dir({}) == expected
+    assert _xla.compile_cache_dir({"XDG_CACHE_HOME": "relative/dir"}) == expected  # not absolute
+
+
+def test_xdg_cache_home_is_respected():
+    assert _xla.compile_cache_dir({"XDG_CACHE_HOME": "/x/cache"}) == "/x/cache/mjxrmp/jax"
+
+
+def test_override_names_the_directory(monkeypatch, tmp_path):
+    monkeypatch.setenv("HOME", str(tmp_path))
+    env = {"XDG_CACHE_HOME": "/x/cache"}
+    assert _xla.compile_cache_dir({**env, _xla.CACHE_ENV: "/data/jax"}) == "/data/jax"
+    assert _xla.compile_cache_dir({_xla.CACHE_ENV: "~/jc"}) == str(tmp_path / "jc")
+
+
+@pytest.mark.parametrize("value", ["off", "0", "false", "OFF", " False "])
+def test_opt_out_values(value):
+    assert _xla.compile_cache_dir({_xla.CACHE_ENV: value}) is None
+
+
+def test_a_user_set_jax_directory_wins(monkeypatch, tmp_path):
+    """Neither the directory, nor JAX's config, nor our override is touched."""
+    mine, ours = tmp_path / "mine", tmp_path / "ours"
+    assert _xla.compile_cache_dir({_xla.JAX_CACHE_DIR_ENV: str(mine),
+                                   _xla.CACHE_ENV: str(ours)}) is None
+    monkeypatch.setenv(_xla.JAX_CACHE_DIR_ENV, str(mine))
+    monkeypatch.setenv(_xla.CACHE_ENV, str(ours))
+    before = jax.config.jax_compilation_cache_dir
+    assert _xla.configure_compile_cache() is None
+    assert os.environ[_xla.JAX_CACHE_DIR_ENV] == str(mine)
+    assert jax.config.jax_compilation_cache_dir == before
+    assert not ours.exists()
+
+
+def test_switched_off_or_unwritable_leaves_everything_as_it_was(monkeypatch, tmp_path, capsys):
+    monkeypatch.delenv(_xla.JAX_CACHE_DIR_ENV, raising=False)
+    before = jax.config.jax_compilation_cache_dir
+    monkeypatch.setenv(_xla.CACHE_ENV, "off")
+    assert _xla.configure_compile_cache() is None
+    (tmp_path / "file").write_text("")
+    blocked = tmp_path / "file" / "jax"
+    monkeypatch.setenv(_xla.CACHE_ENV, str(blocked))
+    assert _xla.configure_compile_cache() is None
+    assert f"compile cache off: cannot create {blocked}" in capsys.readouterr().err
+    assert _xla.JAX_CACHE_DIR_ENV not in os.environ
+    assert jax.config.jax_compilation_cache_dir == before
+
+
+def test_importing_the_library_leaves_the_cache_off():
+    code = "import mjxrmp, jax; print(jax.config.jax_compilation_cache_dir)"
+    out = subprocess.run([sys.executable, "-c", code], env=_script_env(), cwd=ROOT,
+                         capture_output=True, text=True, timeout=300, check=True)
+    assert out.stdout.strip() == "None"
+
+
+def test_a_script_run_fills_the_default_cache(tmp_path):
+    """``scripts/reproduce_ch3.py`` at a few steps, with only ``XDG_CACHE_HOME`` set: its
+    compiled simulations land in ``$XDG_CACHE_HOME/mjxrmp/jax``."""
+    cache = tmp_path / "xdg" / "mjxrmp" / "jax"
+    subprocess.run([sys.executable, "scripts/reproduce_ch3.py", "--out", str(tmp_path / "out"),
+                    "--steps", "3", "--robots", "2", "--seeds", "1"],
+                   env=_script_env(XDG_CACHE_HOME=str(tmp_path / "xdg")), cwd=ROOT,
+                   capture_output=True, text=True, timeout=600, check=True)
+    assert any(p.name.startswith("jit_simulate") for p in cache.iterdir())
