@@ -36,6 +36,7 @@ import envs
 __all__ = ["device_put_replicated", "replicated_device_put", "train_with_brax_ppo"]
 
 _NAME = "device_put_replicated"
+_AXIS = "i"
 
 
 def device_put_replicated(x: Any, devices: Sequence[jax.Device]) -> Any:
@@ -44,7 +45,9 @@ def device_put_replicated(x: Any, devices: Sequence[jax.Device]) -> Any:
     devices = list(devices)
     if not devices:
         raise ValueError("devices must be a non-empty sequence of JAX devices, got none")
-    sharding = NamedSharding(Mesh(np.array(devices), ("replica",)), PartitionSpec("replica"))
+    # The axis is named like brax's pmap axis ("i"): arrays placed under another name carry a
+    # different sharding, and brax's training epoch would compile a second time for them.
+    sharding = NamedSharding(Mesh(np.array(devices), (_AXIS,)), PartitionSpec(_AXIS))
 
     def put(leaf):
         leaf = jnp.asarray(leaf)

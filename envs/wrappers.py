@@ -18,6 +18,7 @@ first scene of each batch slot.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -39,6 +40,18 @@ def _where_done(done: jax.Array, new, old):
     return jax.tree.map(sel, new, old)
 
 
+class ResetPool(NamedTuple):
+    """The next ``depth`` episode starts of every environment, computed ahead
+    (:meth:`AutoResetWrapper.reset_pool`): ``starts`` has leading axes ``(depth, B)``;
+    ``taken (B,)`` counts the starts each environment has used and ``overflow`` is True once an
+    environment finished more episodes than the pool held (its restart is then wrong and the
+    steps since the pool was made must be redone with :meth:`AutoResetWrapper.step`)."""
+
+    starts: State
+    taken: jax.Array
+    overflow: jax.Array
+
+
 class AutoResetWrapper(Wrapper):
     """Resets done episodes with a *new* scene (goal, obstacles, initial state).
 
@@ -47,17 +60,26 @@ class AutoResetWrapper(Wrapper):
     environment's own ``info`` entries (goal, obstacles, key, per-episode accumulators) are
     replaced; brax's episode bookkeeping (:data:`EPISODE_KEYS`), ``reward``,
     ``done`` and ``metrics`` of the terminal step are kept, as in brax.
+
+    :meth:`step` computes that reset for every environment at every step and selects it where
+    an episode ended. The key of an environment's next episode is fixed when its current
+    episode starts, so its next starts can also be computed ahead, once for many steps
+    (:meth:`reset_pool`), and taken in turn by :meth:`step_from_pool`: the same states, without
+    a reset per step (docs/design.md §5.7).
     """
 
-    def step(self, state: State, action: jax.Array) -> State:
-        """Step every environment; finished episodes restart from a freshly sampled scene."""
+    def _advance(self, state: State, action: jax.Array) -> State:
+        """The wrapped step, with brax's step counter of finished episodes restarted."""
         if "steps" in state.info:
             steps = jnp.where(state.done > 0, jnp.zeros_like(state.info["steps"]),
                               state.info["steps"])
             state.info.update(steps=steps)
         state = state.replace(done=jnp.zeros_like(state.done))
-        state = self.env.step(state, action)
-        fresh = self.env.reset(state.info["rng"])
+        return self.env.step(state, action)
+
+    @staticmethod
+    def _restart(state: State, fresh: State) -> State:
+        """``state`` with every done environment replaced by its slot of ``fresh``."""
         done = state.done
         info = dict(state.info)
         for k, v in fresh.info.items():
@@ -68,6 +90,41 @@ class AutoResetWrapper(Wrapper):
             obs=_where_done(done, fresh.obs, state.obs),
             info=info,
         )
+
+    def step(self, state: State, action: jax.Array) -> State:
+        """Step every environment; finished episodes restart from a freshly sampled scene."""
+        state = self._advance(state, action)
+        return self._restart(state, self.env.reset(state.info["rng"]))
+
+    def reset_pool(self, state: State, depth: int) -> ResetPool:
+        """The next ``depth`` episode starts of every environment of ``state``: the first from
+        ``state.info["rng"]`` (what :meth:`step` would reset to), each further one from the key
+        its predecessor stores."""
+        if depth < 1:
+            raise ValueError(f"depth must be a positive integer, got {depth}")
+
+        def following(rng, _):
+            start = self.env.reset(rng)
+            return start.info["rng"], start
+
+        _, starts = jax.lax.scan(following, state.info["rng"], None, length=depth)
+        taken = jnp.zeros(state.done.shape, jnp.int32)
+        return ResetPool(starts, taken, jnp.zeros((), bool))
+
+    def step_from_pool(self, state: State, action: jax.Array, pool: ResetPool
+                       ) -> tuple[State, ResetPool]:
+        """:meth:`step` with each finished episode restarted from the environment's next unused
+        start in ``pool`` instead of a reset computed now (equal while ``pool.overflow`` stays
+        False)."""
+        state = self._advance(state, action)
+        depth = jax.tree.leaves(pool.starts)[0].shape[0]
+        fresh = jax.tree.map(lambda x: x[depth - 1], pool.starts)
+        for j in reversed(range(depth - 1)):
+            fresh = _where_done((pool.taken == j).astype(jnp.float32),
+                                jax.tree.map(lambda x, j=j: x[j], pool.starts), fresh)
+        taken = pool.taken + (state.done > 0).astype(jnp.int32)
+        overflow = pool.overflow | jnp.any(taken > depth)
+        return self._restart(state, fresh), ResetPool(pool.starts, taken, overflow)
 
 
 def wrap(env: Env, episode_length: int | None = None, action_repeat: int = 1) -> Wrapper:
@@ -133,4 +190,4 @@ class RMPInEnv(Wrapper):
         return self.env.step(state, self.joint_acceleration(state, action))
 
 
-__all__ = ["EPISODE_KEYS", "AutoResetWrapper", "RMPInEnv", "wrap"]
+__all__ = ["EPISODE_KEYS", "AutoResetWrapper", "RMPInEnv", "ResetPool", "wrap"]

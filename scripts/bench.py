@@ -23,6 +23,7 @@ Usage::
     python scripts/bench.py                       # CPU: batches up to 4096; GPU: up to 262144
     python scripts/bench.py --robots franka --batches 1 4096 65536 --repeats 7
     python -m scripts.bench --quick --json /tmp/bench.json   # smoke test
+    python scripts/bench.py --peers thesis gpu    # PPO peers side by side: results/peers
 
 Writes JSON (``--json``, default ``results/rmp2_evaluation/bench_<device>.json``) after every
 row, so a run cut short still leaves its numbers. The measurements live in :mod:`agents.bench`
@@ -42,6 +43,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from mjxrmp import _xla  # sets the XLA:CPU flag before JAX initialises
 
 # isort: split
+from agents.bench.peers import TRAINERS, run_from_settings
 from agents.bench.rmp2 import ROBOTS
 from agents.bench.run import (
     CPU_BATCHES,
@@ -106,6 +108,18 @@ def parse_args(argv: Sequence[str] | None) -> dict:
                    help="offline gradient-steps/s rows (offline.experiment.bench), e.g. atac")
     p.add_argument("--offline-seeds", nargs="+", type=int, default=[1, 8],
                    help="vmapped seed counts of the offline rows")
+    p.add_argument("--peers", nargs="*", default=None, metavar="LAYOUT",
+                   help="only PPO peers side by side (ours, brax, rejax) on three_link/env3 at "
+                        "layouts thesis and/or gpu (none given: thesis); results/peers")
+    p.add_argument("--peer-trainers", nargs="+", default=list(TRAINERS), choices=TRAINERS)
+    p.add_argument("--peer-iterations", type=int, default=None,
+                   help="PPO iterations per trainer (default 8; --quick 2)")
+    p.add_argument("--peer-chunk", type=int, default=None,
+                   help="iterations per timed chunk (default 2; --quick 1)")
+    p.add_argument("--peer-episodes", type=int, default=None,
+                   help="evaluation episodes of each final policy (default 64; --quick 4)")
+    p.add_argument("--peer-set", nargs="*", default=[], metavar="FIELD=VALUE",
+                   help="overrides of the thesis PPO preset for every trainer")
     args = p.parse_args(argv)
     if args.pin_cpu is not None:
         # Threads XLA creates later inherit this affinity: no hand-offs between cores.
@@ -124,6 +138,8 @@ def main(argv: Sequence[str] | None = None) -> dict:
     settings = parse_args(argv)
     command = " ".join(["python scripts/bench.py", *(argv if argv is not None
                                                      else sys.argv[1:])])
+    if settings["peers"] is not None:
+        return {"summary": str(run_from_settings(settings, command, ROOT / "results" / "peers"))}
     return run_benchmark(settings, command, ROOT / "results" / "rmp2_evaluation",
                          offline_measure=measure_offline)
 

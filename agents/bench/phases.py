@@ -10,7 +10,10 @@ reported per control step:
   iteration (``contact_free_1iter``): the floor the environment is compared with;
 * ``env_step_raw`` — the environment's own ``step`` (PD scheme, geometry, reward, observation)
   with a zero action, no wrappers;
-* ``env_step`` — the training ``envs.wrappers.wrap`` step (episode limit and auto-reset);
+* ``env_step`` — the training ``envs.wrappers.wrap`` step (episode limit and auto-reset, a
+  fresh reset for every environment at every step);
+* ``env_step_pooled`` — the same, restarting from reset pools made every
+  :data:`agents.ppo.rollout.POOL_BLOCK` steps, as the PPO rollout does;
 * ``reset`` — one full ``reset`` of every environment (scene sampling with rejection);
 * ``observe`` — geometry, observation and goal metrics alone;
 * ``rmp2_policy`` — the hand-designed RMP² policy's forward alone.
@@ -35,6 +38,7 @@ import mujoco
 from mujoco import mjx
 
 import envs
+from agents.ppo.rollout import POOL_DEPTH, pool_block
 from envs.evaluate import hand_designed_policy
 from envs.wrappers import wrap
 
@@ -120,6 +124,17 @@ def phase_programs(env_name: str, batch: int, steps: int, key: jax.Array
     out["env_step_raw"] = lambda: raw(state)
     stepped = _scan(lambda s: wrapped.step(s, zero), steps)
     out["env_step"] = lambda: stepped(wstate)
+    block = pool_block(steps) or steps
+
+    def pooled_block(s):
+        def body(c, _):
+            return wrapped.step_from_pool(c[0], zero, c[1]), None
+        return jax.lax.scan(body, (s, wrapped.reset_pool(s, POOL_DEPTH)), None,
+                            length=block)[0][0]
+
+    pooled = jax.jit(lambda s: jax.lax.scan(lambda c, _: (pooled_block(c), None), s, None,
+                                            length=steps // block)[0])
+    out["env_step_pooled"] = lambda: pooled(wstate)
     # reset stores the next key in info["rng"]: each call draws new scenes (nothing to hoist)
     resets = _scan(lambda s: jax.vmap(base.reset)(s.info["rng"]), steps)
     out["reset"] = lambda: resets(state)

@@ -25,7 +25,8 @@ from agents.bench.phases import limit_excursions, phase_programs, time_phase
 from mjxrmp.results.summary import run_record, write_summary, write_text
 
 #: Phases whose kernels are counted (the rest are timed only).
-TRACED = ("physics_as_is", "physics_contact_free", "env_step_raw", "env_step")
+TRACED = ("physics_as_is", "physics_contact_free", "env_step_raw", "env_step",
+          "env_step_pooled")
 
 
 def _gpu_kernels(trace_path: str) -> tuple[int, float]:
@@ -99,11 +100,12 @@ def write_profile(results: dict[str, dict[str, Any]], batch: int, out_dir: Path,
         p = r["phases"]
         headline.append({"run": run, "cells": [
             f"{env_name}, {batch} environments: contact-free physics floor / physics as "
-            "generated / environment step / training step (auto-reset) / reset, ms per "
-            "control step",
+            "generated / environment step / training step with a reset at every step / "
+            "with reset pools / reset, ms per control step",
             "—",
             " / ".join(_ms(p, n) for n in ("physics_contact_free", "physics_as_is",
-                                           "env_step_raw", "env_step", "reset"))]})
+                                           "env_step_raw", "env_step", "env_step_pooled",
+                                           "reset"))]})
         if r["limits"] is not None:
             lim = r["limits"]
             headline.append({"run": run, "cells": [

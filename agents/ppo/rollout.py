@@ -18,22 +18,48 @@ from brax.envs.base import Env
 from agents.ppo.losses import gaussian_log_prob
 from agents.ppo.networks import PPONetworks
 from agents.ppo.state import TrainState, Transition
+from envs.wrappers import AutoResetWrapper
+
+#: Environment steps between two reset pools of the pooled rollout (a divisor of the rollout
+#: length is used) and the episode starts each pool holds per environment.
+POOL_BLOCK = 64
+POOL_DEPTH = 2
 
 
-def make_rollout(env: Env, nets: PPONetworks, num_steps: int, constrain: Callable[..., Any]
+def pool_block(num_steps: int, block: int = POOL_BLOCK) -> int | None:
+    """The largest divisor of ``num_steps`` not above ``block``, or None when it is below 8
+    (too short a block for a pool to pay off)."""
+    size = max(d for d in range(1, min(block, num_steps) + 1) if num_steps % d == 0)
+    return size if size >= 8 else None
+
+
+def make_rollout(env: Env, nets: PPONetworks, num_steps: int, constrain: Callable[..., Any],
+                 seed_axis: str | None = None
                  ) -> Callable[[TrainState, jax.Array], tuple[TrainState, Transition]]:
     """``rollout(ts, key) -> (ts, transitions)``: ``num_steps`` steps of the batched,
     auto-resetting ``env`` with actions sampled from the policy; ``transitions`` is time-major
     ``(num_steps, num_envs, ...)``. ``constrain`` places the environment batch on the mesh
-    (:func:`agents.ppo.sharding.batch_axis_sharding`)."""
+    (:func:`agents.ppo.sharding.batch_axis_sharding`).
 
-    def env_step(carry, key):
+    With ``seed_axis`` (the ``axis_name`` of the ``vmap`` over seeds around the trainer) and an
+    :class:`envs.wrappers.AutoResetWrapper` environment the steps run in blocks of
+    :func:`pool_block` steps, each restarting finished episodes from a :class:`~envs.wrappers.
+    ResetPool` of :data:`POOL_DEPTH` starts made at the block's beginning instead of a reset
+    computed at every step; a block in which some environment (of any seed) finishes more
+    episodes than that is run again with per-step resets. Both give the same transitions; the
+    axis name lets every seed take the same branch, so the redo is a real conditional.
+    """
+    block = pool_block(num_steps) if seed_axis is not None else None
+    pooled = block is not None and isinstance(env, AutoResetWrapper)
+
+    def act(carry, key, advance):
         params, stats, state, ep_ret, ep_col = carry
         obs = state.obs
         mean, log_std = nets.policy_apply(params["policy"], obs, stats)
         action = mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape, mean.dtype)
         value = nets.value_apply(params["value"], obs, stats)
-        state = constrain(env.step(state, action))
+        state, extra = advance(state, action)
+        state = constrain(state)
         reward = state.reward.astype(jnp.float32)
         done = state.done.astype(jnp.float32)
         collision = state.metrics.get("collision", jnp.zeros_like(reward))
@@ -45,12 +71,34 @@ def make_rollout(env: Env, nets: PPONetworks, num_steps: int, constrain: Callabl
                         success)
         ep_ret = jnp.where(done > 0, 0.0, ep_ret)
         ep_col = jnp.where(done > 0, 0.0, ep_col)
-        return (params, stats, state, ep_ret, ep_col), tr
+        return (params, stats, state, ep_ret, ep_col), tr, extra
+
+    def plain(carry, keys):
+        def body(c, key):
+            c, tr, _ = act(c, key, lambda s, a: (env.step(s, a), None))
+            return c, tr
+        return jax.lax.scan(body, carry, keys)
+
+    def from_pool(carry, keys):
+        def body(c, key):
+            c, pool = c
+            c, tr, pool = act(c, key, lambda s, a: env.step_from_pool(s, a, pool))
+            return (c, pool), tr
+        pool = env.reset_pool(carry[2], POOL_DEPTH)
+        (carry_out, pool), tr = jax.lax.scan(body, (carry, pool), keys)
+        redo = jax.lax.pmax(pool.overflow, seed_axis)
+        return jax.lax.cond(redo, plain, lambda c, k: (carry_out, tr), carry, keys)
 
     def rollout(ts, key):
         carry = (ts.params, ts.obs_stats, ts.env_state, ts.episode_return, ts.episode_collided)
-        (_, _, state, ep_ret, ep_col), tr = jax.lax.scan(
-            env_step, carry, jax.random.split(key, num_steps))
+        keys = jax.random.split(key, num_steps)
+        if pooled:
+            blocks = keys.reshape((num_steps // block, block, *keys.shape[1:]))
+            carry, tr = jax.lax.scan(from_pool, carry, blocks)
+            tr = jax.tree.map(lambda x: x.reshape((num_steps, *x.shape[2:])), tr)
+        else:
+            carry, tr = plain(carry, keys)
+        _, _, state, ep_ret, ep_col = carry
         ts = ts._replace(env_state=state, episode_return=ep_ret, episode_collided=ep_col)
         return ts, constrain(tr, 1)
 
@@ -77,4 +125,4 @@ def episode_metrics(tr: Transition) -> dict[str, jax.Array]:
     }
 
 
-__all__ = ["episode_metrics", "make_rollout"]
+__all__ = ["POOL_BLOCK", "POOL_DEPTH", "episode_metrics", "make_rollout", "pool_block"]

@@ -131,6 +131,7 @@ def make_trainer(
     policy: nn.Module | None = None,
     config: PPOConfig | None = None,
     mesh: Mesh | None = None,
+    seed_axis: str | None = None,
 ) -> Trainer:
     """The PPO program for a single (un-batched) brax environment; see :class:`Trainer`.
 
@@ -151,6 +152,12 @@ def make_trainer(
     all-reduces the gradients). ``num_envs`` and the minibatch size must be divisible by the
     mesh size. The same code runs on one CPU, several GPUs or several hosts and computes the
     same numbers up to summation order.
+
+    ``seed_axis``: the ``axis_name`` of a ``jax.vmap`` over seeds that the caller puts around
+    ``init``/``run``/``rollout`` (e.g. ``jax.vmap(trainer.run, axis_name=seed_axis)``); with it
+    the rollout restarts finished episodes from reset pools computed once per block of steps
+    (:func:`agents.ppo.rollout.make_rollout`, same transitions). Leave it None when the trainer
+    is not vmapped under that name.
     """
     config = _check_arguments(policy, config, mesh)
     batched = env if isinstance(env, AutoResetWrapper) else wrap(env, config.episode_length)
@@ -158,7 +165,7 @@ def make_trainer(
     tx = make_optimizer(config)
     constrain = batch_axis_sharding(mesh, config.num_envs)
     init = _make_init(batched, nets, tx, config, int(env.observation_size), constrain)
-    rollout = make_rollout(batched, nets, config.rollout_length, constrain)
+    rollout = make_rollout(batched, nets, config.rollout_length, constrain, seed_axis)
     update = make_update(nets, tx, config, mesh)
 
     def iteration(ts, _):

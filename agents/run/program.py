@@ -19,6 +19,10 @@ from jax.sharding import Mesh
 from agents.ppo import PPOConfig, Trainer, TrainState, make_env_and_policy, make_trainer
 from agents.run.spec import RunSpec
 
+#: The ``axis_name`` of the vmap over seeds (lets the rollout's reset pools take one branch for
+#: all seeds: :func:`agents.ppo.make_trainer`).
+SEED_AXIS = "seeds"
+
 
 @dataclasses.dataclass
 class Program:
@@ -42,19 +46,24 @@ class Program:
 
 
 @functools.lru_cache(maxsize=8)
-def _program(env: str, policy: str, ppo: PPOConfig, mesh: Mesh | None) -> Program:
+def _program(env: str, policy: str, ppo: PPOConfig, mesh: Mesh | None,
+             reset_pools: bool) -> Program:
     env_obj, module = make_env_and_policy(env, policy)
-    trainer = make_trainer(env_obj, module, ppo, mesh)
-    init = jax.jit(jax.vmap(trainer.init))
-    run = jax.jit(jax.vmap(trainer.run, in_axes=(0, None)), static_argnums=1)
+    trainer = make_trainer(env_obj, module, ppo, mesh,
+                           seed_axis=SEED_AXIS if reset_pools else None)
+    init = jax.jit(jax.vmap(trainer.init, axis_name=SEED_AXIS))
+    run = jax.jit(jax.vmap(trainer.run, in_axes=(0, None), axis_name=SEED_AXIS),
+                  static_argnums=1)
     return Program(trainer, init, run)
 
 
-def build(spec: RunSpec, mesh: Mesh | None = None) -> Program:
+def build(spec: RunSpec, mesh: Mesh | None = None, reset_pools: bool = False) -> Program:
     """The :class:`Program` of ``spec`` (cached: runs that differ only in length, seeds or
-    logging share compiled code)."""
+    logging share compiled code). ``reset_pools`` restarts episodes from reset pools
+    (docs/design.md §5.7: the same transitions, a cheaper Franka step, but the rollout compiles
+    about twice as long, so it is off by default)."""
     return _program(spec.env, spec.policy, dataclasses.replace(spec.ppo, total_iterations=1),
-                    mesh)
+                    mesh, reset_pools)
 
 
 def seed_keys(seeds: tuple[int, ...]) -> jax.Array:
@@ -77,13 +86,14 @@ def profile_iteration(program: Program, state: TrainState, repeats: int = 3) -> 
     """Median wall time (s) of one iteration's pieces for all seeds, compiled separately:
     ``rollout`` (environment + policy sampling, ``rollout_length`` steps), ``policy_forward``
     (the policy alone — RMP² included — on the rollout's ``rollout_length × num_envs``
-    observations) and ``update`` (GAE + every epoch and minibatch, RMP² backprop included).
-    Does not change ``state``."""
+    observations), ``update`` (GAE + every epoch and minibatch, RMP² backprop included) and
+    ``rollout_reset_pools`` (the same rollout restarting episodes from reset pools:
+    :func:`agents.ppo.make_trainer`). Does not change ``state``."""
     trainer = program.trainer
     n = trainer.config.rollout_length
     keys = jnp.broadcast_to(jax.random.PRNGKey(0), (state.iteration.shape[0], 2))
-    rollout = jax.jit(jax.vmap(trainer.rollout))
-    update = jax.jit(jax.vmap(trainer.update))
+    rollout = jax.jit(jax.vmap(trainer.rollout, axis_name=SEED_AXIS))
+    update = jax.jit(jax.vmap(trainer.update, axis_name=SEED_AXIS))
     _, tr = rollout(state, keys)
 
     def forward(ts, obs):
@@ -93,10 +103,13 @@ def profile_iteration(program: Program, state: TrainState, repeats: int = 3) -> 
         return jax.lax.scan(body, 0, obs)[1]
 
     forward = jax.jit(jax.vmap(forward))
+    pooled = make_trainer(trainer.env, trainer.policy, trainer.config, seed_axis=SEED_AXIS)
+    pooled_rollout = jax.jit(jax.vmap(pooled.rollout, axis_name=SEED_AXIS))
     pieces = {"rollout": lambda: rollout(state, keys),
+              "rollout_reset_pools": lambda: pooled_rollout(state, keys),
               "policy_forward": lambda: forward(state, tr.obs[:, :n]),
               "update": lambda: update(state, tr, keys)}
     return {name: _median_seconds(fn, repeats) for name, fn in pieces.items()}
 
 
-__all__ = ["Program", "build", "profile_iteration", "seed_keys"]
+__all__ = ["SEED_AXIS", "Program", "build", "profile_iteration", "seed_keys"]

@@ -25,6 +25,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from mjxrmp._xla import CPU_FLAG
 from mjxrmp.atomic import atomic_write
 
 REQUIRED = ("study", "title", "report", "runs", "headline", "deviations")
@@ -90,13 +91,31 @@ def load_summary(path: str | os.PathLike) -> dict:
     return validate_summary(data, str(path))
 
 
+def cpu_name() -> str:
+    """``CPU (<cores>-core <model>)``: the model from ``/proc/cpuinfo`` where there is one
+    (``platform.processor()`` is empty on many Linux machines), else from ``platform``."""
+    model = platform.processor()
+    try:
+        with open("/proc/cpuinfo") as f:
+            names = [line.split(":", 1)[1].strip() for line in f if line.startswith("model name")]
+        model = names[0] if names else model
+    except OSError:
+        pass
+    return f"CPU ({os.cpu_count()}-core {model or platform.machine()})"
+
+
 def run_record(command: str, device: str | None = None) -> dict:
-    """The ``runs`` entry for a run made now: command, device, package versions and date."""
+    """The ``runs`` entry for a run made now: command, device, package versions and date. XLA
+    flags set by the user (not the CPU workaround every script sets, docs/design.md §5.2) change
+    what is measured, so the command records them."""
+    flags = os.environ.get("XLA_FLAGS", "").replace(CPU_FLAG, "").strip()
+    if flags and not command.startswith("XLA_FLAGS="):
+        command = f'XLA_FLAGS="{flags}" {command}'
     if device is None:
         import jax  # lazy: only a run that reports its own device needs JAX initialised
 
         dev = jax.devices()[0]
-        device = dev.device_kind if dev.platform != "cpu" else f"CPU ({platform.processor()})"
+        device = dev.device_kind if dev.platform != "cpu" else cpu_name()
     versions = {}
     for pkg in PACKAGES:
         try:

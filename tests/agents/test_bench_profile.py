@@ -39,7 +39,7 @@ def test_profile_of_every_phase_is_written_as_a_study(tmp_path):
     r = profile_env("three_link/env3", batch=2, steps=2, repeats=1, episodes=2, horizon=3,
                     key=jax.random.PRNGKey(0))
     names = {f"physics_{v}" for v in PHYSICS_VARIANTS} | {
-        "env_step_raw", "env_step", "reset", "observe", "rmp2_policy"}
+        "env_step_raw", "env_step", "env_step_pooled", "reset", "observe", "rmp2_policy"}
     assert set(r["phases"]) == names
     assert all(0 < t["per_step_s"] < 10 for t in r["phases"].values())
     assert all(k is None for k in r["kernels"].values())

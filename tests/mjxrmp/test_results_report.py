@@ -6,9 +6,11 @@ import json
 
 import pytest
 
+from mjxrmp._xla import CPU_FLAG
 from mjxrmp.results.report import fill_report, headline_table, render_all, render_table, stale_files
 from mjxrmp.results.summary import (
     SummaryError,
+    cpu_name,
     load_summary,
     run_record,
     validate_summary,
@@ -85,6 +87,22 @@ def test_run_record_has_versions_and_an_iso_date():
     assert set(record) == {"command", "device", "versions", "date"}
     assert "jax" in record["versions"]
     validate_summary({**_summary(), "runs": {"gpu": record}})
+
+
+def test_cpu_runs_name_the_processor():
+    """A CPU run's device names the cores and a model (never an empty ``CPU ()``)."""
+    name = cpu_name()
+    assert name.startswith("CPU (") and "-core " in name and not name.endswith("-core )")
+
+
+def test_run_record_keeps_the_users_xla_flags(monkeypatch):
+    """XLA flags change what a benchmark measures: the recorded command carries the user's,
+    not the CPU workaround every script sets."""
+    monkeypatch.setenv("XLA_FLAGS", CPU_FLAG)
+    assert run_record("python scripts/x.py", device="CPU")["command"] == "python scripts/x.py"
+    monkeypatch.setenv("XLA_FLAGS", f"--xla_gpu_enable_command_buffer=FUSION {CPU_FLAG}")
+    assert run_record("python scripts/x.py", device="CPU")["command"] == (
+        'XLA_FLAGS="--xla_gpu_enable_command_buffer=FUSION" python scripts/x.py')
 
 
 def test_report_blocks_are_rendered_and_checked(tmp_path):
