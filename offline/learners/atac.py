@@ -60,8 +60,8 @@ from offline.learners.atac_step import (
     ATACCore,
     ATACState,
     RewardModel,
-    atac_step,
     dataset_rewards,
+    run_steps,
 )
 from offline.learners.base import (
     ObservationNormalizer,
@@ -71,7 +71,6 @@ from offline.learners.base import (
     normalized_dataset,
     observation_normalizer,
     policy_act,
-    scan_steps,
 )
 from offline.learners.networks import FROBENIUS_BOUND, QEnsemble, project_frobenius
 from offline.learners.residual_actor import check_actor, dataset_bases, make_actor
@@ -92,7 +91,10 @@ class ATACConfig:
     the backups to ``[V_min, V_max]`` computed from the reward range.
     ``normalize_observations`` standardises the states (module docstring; default off).
     ``actor`` is the actor class (:data:`offline.learners.residual_actor.ACTORS`; default
-    ``"mlp"``).
+    ``"mlp"``). ``block_steps`` and ``unroll`` set how the steps run, not what they compute
+    (:func:`offline.learners.atac_step.run_steps`: the randomness of ``block_steps`` steps drawn
+    at once, an inner loop unrolled ``unroll`` times); they change results only by float
+    rounding.
     """
 
     hidden_sizes: Sequence[int] = (256, 256, 256)
@@ -116,12 +118,14 @@ class ATACConfig:
     clip_v: bool = False
     normalize_observations: bool = False
     actor: str = "mlp"
+    block_steps: int = 8
+    unroll: int = 1
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden_sizes", tuple(self.hidden_sizes))
         n = type(self).__name__
         object.__setattr__(self, "hidden_sizes", check_network(self.hidden_sizes, None, f"{n}."))
-        for name in ("num_critics", "batch_size", "num_steps"):
+        for name in ("num_critics", "batch_size", "num_steps", "block_steps", "unroll"):
             check_int(getattr(self, name), f"{n}.{name}")
         check_int(self.warmstart_steps, f"{n}.warmstart_steps", minimum=0)
         for name in ("critic_lr", "actor_lr", "alpha_lr", "bc_lr", "init_temperature",
@@ -184,7 +188,7 @@ def make_core(dynamics: odata.Dataset, config: ATACConfig, reward: RewardModel, 
         raise ValueError("a trained reward player (fit_loss) needs a weight(beta) function")
     scale = action_scale(dynamics)
     norm = observation_normalizer(dynamics, config.normalize_observations, normalizer)
-    core = _build_core(dynamics, config, reward, reward_range, norm)
+    core = build_core(dynamics, config, reward, reward_range, norm)
     obs_size, act_size = core.ds.observation_size, core.ds.action_size
 
     def init(key: jax.Array, beta: Any = None) -> ATACState:
@@ -206,16 +210,18 @@ def make_core(dynamics: odata.Dataset, config: ATACConfig, reward: RewardModel, 
                          jnp.zeros((), jnp.int32), jnp.asarray(b, jnp.float32))
 
     def run(state: ATACState, n: int) -> tuple[ATACState, dict]:
-        return scan_steps(lambda s, k: atac_step(core, s, k), state, n)
+        return run_steps(core, state, n)
 
     return Trainer(init=init, run=run, act=policy_act(core.actor, scale, norm),
                    num_steps=config.num_steps)
 
 
-def _build_core(dynamics: odata.Dataset, config: ATACConfig, reward: RewardModel,
-                reward_range: tuple[float, float] | None, norm: ObservationNormalizer
-                ) -> ATACCore:
-    """The prepared data, networks, optimisers and constants of :func:`make_core`."""
+def build_core(dynamics: odata.Dataset, config: ATACConfig, reward: RewardModel,
+               reward_range: tuple[float, float] | None = None,
+               norm: ObservationNormalizer | None = None) -> ATACCore:
+    """The prepared data, networks, optimisers and constants of :func:`make_core` (what
+    :func:`offline.learners.atac_step.atac_step` takes); ``norm``: the observation normalizer
+    in use (None: the identity)."""
     ds = prepare_dataset(dynamics, config.remove_terminals, norm)
     if reward_range is None and config.clip_v:
         r = np.asarray(ds.rewards)
@@ -275,6 +281,7 @@ __all__ = [
     "ATACConfig",
     "ATACState",
     "RewardModel",
+    "build_core",
     "check_no_reward_data",
     "dataset_rewards",
     "make_core",

@@ -79,8 +79,12 @@ class TanhGaussian(NamedTuple):
     def sample_pre_tanh(self, key: jax.Array, sample_shape: Sequence[int] = ()) -> jax.Array:
         """Reparameterised ``u = mean + exp(log_std)·ε``, shape ``sample_shape + mean.shape``."""
         shape = (*tuple(sample_shape), *self.mean.shape)
-        eps = jax.random.normal(key, shape, self.mean.dtype)
-        return self.mean + jnp.exp(self.log_std) * eps
+        return self.pre_tanh_from_noise(jax.random.normal(key, shape, self.mean.dtype))
+
+    def pre_tanh_from_noise(self, noise: jax.Array) -> jax.Array:
+        """``u = mean + exp(log_std)·noise`` for standard-normal ``noise`` drawn elsewhere
+        (``sample_pre_tanh(key)`` is this with ``noise = normal(key, mean.shape)``)."""
+        return self.mean + jnp.exp(self.log_std) * noise
 
     def sample(self, key: jax.Array, sample_shape: Sequence[int] = ()
                ) -> tuple[jax.Array, jax.Array]:
@@ -90,6 +94,12 @@ class TanhGaussian(NamedTuple):
         Differentiable in ``mean`` / ``log_std`` (reparameterisation).
         """
         u = self.sample_pre_tanh(key, sample_shape)
+        return jnp.tanh(u), self.log_prob_pre_tanh(u)
+
+    def sample_from_noise(self, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """:meth:`sample` with its standard-normal ``noise`` drawn elsewhere (e.g. for many
+        steps at once): ``(tanh(u), log π)``, ``u`` from :meth:`pre_tanh_from_noise`."""
+        u = self.pre_tanh_from_noise(noise)
         return jnp.tanh(u), self.log_prob_pre_tanh(u)
 
     def log_prob(self, action: jax.Array, eps: float = ACTION_EPS) -> jax.Array:

@@ -71,14 +71,15 @@ def test_jax_kinematics_matches_mjx_sites(rollout):
 
 
 def test_sampler_rules():
-    keys = jax.random.split(jax.random.PRNGKey(1), 10_000)
+    # 2,000 scenes: the rules hold for every one (10,000 took 25 CPU s of rejection sampling)
+    keys = jax.random.split(jax.random.PRNGKey(1), 2_000)
     q0, qd0, goal, obs, ok = jax.jit(jax.vmap(ENV.sample_scene))(keys)
     assert float(jnp.mean(ok)) == 1.0
     default = np.asarray(franka.DEFAULT_Q)
     assert np.all(np.abs(np.asarray(q0) - default) <= 0.1 + 1e-6)
     assert np.all(np.abs(np.asarray(qd0)) <= 0.005)
     c, r, goal = np.asarray(obs.center), np.asarray(obs.radius), np.asarray(goal)
-    assert c.shape == (10_000, 3, 3)
+    assert c.shape == (2_000, 3, 3)
     for p in (goal, c.reshape(-1, 3)):
         rho = np.hypot(p[:, 0], p[:, 1])
         assert np.all((rho - 0.5) ** 2 + (p[:, 2] - 0.5) ** 2 <= 0.09 + 1e-5)

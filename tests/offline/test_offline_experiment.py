@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import subprocess
 import sys
 from collections.abc import Callable, Sequence
@@ -276,9 +277,25 @@ def test_ch7_expert_set_size_gets_its_own_data_cells_and_table(tmp_path):
         ch7_args([*base, "--expert-scale", "0"])
 
 
-def test_ch7_learning_curves_end_at_the_final_scores(tmp_path):
+#: The tests reading :func:`ch7_data` run in one xdist worker (``--dist loadgroup``), so the
+#: data are collected once per suite.
+CH7_DATA = pytest.mark.xdist_group("ch7_data")
+
+
+@pytest.fixture(scope="module")
+def ch7_data(tmp_path_factory) -> Path:
+    """``reproduce_ch7.py --scale 1 --stage collect``'s ``data/`` (the mixed and expert sets of
+    three_link/env3), collected once for the module's train-stage runs."""
+    out = tmp_path_factory.mktemp("ch7_data")
+    ch7_table.run(ch7_args(["--out", str(out), "--scale", "1", "--stage", "collect"]))
+    return out / "data"
+
+
+@CH7_DATA
+def test_ch7_learning_curves_end_at_the_final_scores(tmp_path, ch7_data):
     """``reproduce_ch7.py --curve``: one evaluation per chunk in the row, the last equal to the
     row's final evaluation (same parameters, same episodes)."""
+    shutil.copytree(ch7_data, tmp_path / "data")
     ch7_table.run(ch7_args(["--out", str(tmp_path), "--scale", "1", "--steps", "40", "--chunk",
                             "20", "--hidden", "16", "16", "--seeds", "2", "--eval-episodes",
                             "2", "--scenarios", "ILfO", "--learners", "BC", "--curve"]))
@@ -290,7 +307,8 @@ def test_ch7_learning_curves_end_at_the_final_scores(tmp_path):
     assert row["eval_s"] > 0 and row["train_s"] > 0
 
 
-def test_ch7_oracle_is_trained_once_per_dynamics_dataset(tmp_path):
+@CH7_DATA
+def test_ch7_oracle_is_trained_once_per_dynamics_dataset(tmp_path, ch7_data):
     """The Oracle reads only the dynamics data: ILfO, RLfO and RL-sample share ``D_X``, so one
     run gives all three rows (the later two copies marked ``shared_from``); IL and RL-expert
     share ``D_X ∪ D_E``."""
@@ -299,6 +317,7 @@ def test_ch7_oracle_is_trained_once_per_dynamics_dataset(tmp_path):
     budget = ["--scale", "1", "--steps", "20", "--chunk", "20", "--hidden", "16", "16",
               "--seeds", "2", "--eval-episodes", "2", "--learners", "Oracle"]
     argv = ["--out", str(tmp_path), *budget, "--scenarios", "ILfO", "RLfO", "RL-sample"]
+    shutil.copytree(ch7_data, tmp_path / "data")
     ch7_table.run(ch7_args(argv))
     rows = [json.loads(x) for x in (tmp_path / "results.jsonl").read_text().splitlines()]
     assert [r["scenario"] for r in rows] == ["ILfO", "RLfO", "RL-sample"]
@@ -314,9 +333,7 @@ def test_ch7_oracle_is_trained_once_per_dynamics_dataset(tmp_path):
     assert len((tmp_path / "results.jsonl").read_text().splitlines()) == 3
     # The claim behind the copy: RL-sample's Oracle trained on its own scores the same as ILfO's.
     alone = tmp_path / "alone"
-    (alone / "data").mkdir(parents=True)
-    for f in (tmp_path / "data").iterdir():
-        (alone / "data" / f.name).write_bytes(f.read_bytes())
+    shutil.copytree(ch7_data, alone / "data")
     ch7_table.run(ch7_args(["--out", str(alone), *budget, "--scenarios", "RL-sample",
                             "--stage", "train"]))
     (own,) = [json.loads(x) for x in (alone / "results.jsonl").read_text().splitlines()]
