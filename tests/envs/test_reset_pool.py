@@ -18,7 +18,7 @@ import pytest
 
 import envs
 from agents.ppo import PPOConfig, make_env_and_policy, make_trainer
-from agents.ppo.rollout import POOL_DEPTH, pool_block
+from agents.ppo.rollout import pool_block
 from envs.wrappers import wrap
 
 RTOL = ATOL = 1e-6
@@ -103,7 +103,6 @@ def test_pool_block_sizes():
     assert pool_block(96) == 48
     assert pool_block(13) == 13  # one block of the whole rollout
     assert pool_block(134) is None  # 2 · 67: blocks of 2 steps would not pay off
-    assert POOL_DEPTH >= 1
 
 
 def test_pooled_ppo_run_matches():
