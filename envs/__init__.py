@@ -12,6 +12,7 @@ re-samples goal and obstacles).
 * :mod:`envs.franka` — :class:`FrankaReach` (Franka Panda, ball obstacles);
 * :mod:`envs.point2d` — :class:`PointRobot2D` (pure-JAX double integrator);
 * :mod:`envs.samplers` — region samplers and bounded rejection;
+* :mod:`envs.physics` — which MuJoCo pipeline stages the environments run (constraints off);
 * :mod:`envs.wrappers` — the re-sampling auto-reset, :func:`wrap`, :class:`RMPInEnv`;
 * :mod:`envs.evaluate` — frozen-episode rollouts and summaries of a policy;
 * :mod:`envs.render` — animated GIFs of a rollout (needs matplotlib, ``pip install -e ".[plots]"``).
@@ -42,6 +43,7 @@ __all__ = [
     "evaluate",
     "franka",
     "make",
+    "physics",
     "point2d",
     "reaching",
     "register_brax",

@@ -30,6 +30,12 @@ term and the observation vectors come from analytic JAX geometry on the robot's 
 (:mod:`mjxrmp.geometry`, exact norm): 3-link obstacles are vertical cylinders (circles in the
 plane), Franka obstacles are balls.
 
+**MuJoCo's constraint pipeline is off** (``constraint_stages=False``, docs/design.md §5.8):
+the models have no contacts or equality constraints and the position targets are clipped to the
+joint ranges, so the solver has nothing to do that changes the motion, but under MJX it costs up
+to a third of a control step. ``constraint_stages=True`` simulates the MJCF as generated
+(joint-limit constraints included).
+
 **Reward** per substep :func:`envs.base.reach_reward` with ``τ = data.qfrc_actuator`` as the
 effort (``exp(−½‖x−g‖²/σ²) − Σ_i max(0, 1 − d_i/δ) − λ‖τ‖²`` clipped to ``[−5, 1]``; ``d_i`` the
 smallest control-point surface distance to obstacle ``i``), averaged over the substeps up to
@@ -67,6 +73,7 @@ from envs.base import (
     reach_reward,
     sample_first_valid,
 )
+from envs.physics import set_constraint_stages
 from mjxrmp.config import check_bool, check_choice, check_float, check_int
 from mjxrmp.geometry import Obstacles
 from mjxrmp.leaves.hand_designed import safe_norm
@@ -105,6 +112,7 @@ class ReachEnv(Env):
         candidates: int = 32,
         observation: str = "default",
         measured_velocity: bool = False,
+        constraint_stages: bool = False,
     ):
         name = type(self).__name__
         self.observation_variant = check_choice(observation, f"{name}.observation", OBSERVATIONS)
@@ -115,7 +123,9 @@ class ReachEnv(Env):
         self.candidates = check_int(candidates, f"{name}.candidates")
         self.measured_velocity = check_bool(measured_velocity, f"{name}.measured_velocity")
         self.robot: Robot = get(self.robot_name)
-        self.mj_model = mujoco.MjModel.from_xml_string(xml)
+        self.constraint_stages = check_bool(constraint_stages, f"{name}.constraint_stages")
+        self.mj_model = set_constraint_stages(mujoco.MjModel.from_xml_string(xml),
+                                              self.constraint_stages)
         self.mjx_model = mjx.put_model(self.mj_model)
         self._data0 = mjx.make_data(self.mjx_model)
         self.sim_dt = float(self.mj_model.opt.timestep)

@@ -1,5 +1,6 @@
 """Profile the reaching environments' control step: each phase timed alone against the physics
-floor, GPU kernels per control step, and the joint-limit check of the contact-free model.
+floor, GPU kernels per control step, and the joint-limit checks of dropping MuJoCo's
+constraint stages (the hand-designed policy and, with ``--trained``, a trained one).
 
 Writes ``results/performance/summary.json`` and ``table.csv`` (the ``performance`` study of
 ``BENCHMARKS.md``; findings in ``docs/reports/performance.md``). The measurements live in
@@ -9,6 +10,7 @@ Examples::
 
     python scripts/profile_step.py                                  # both robots, 512 envs
     python scripts/profile_step.py --envs franka --batch 4096 --episodes 0
+    python scripts/profile_step.py --trained franka=runs/franka_rmp_residual
 """
 
 from __future__ import annotations
@@ -41,6 +43,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--episodes", type=int, default=1024,
                    help="episodes of the joint-limit check (0 skips it)")
     p.add_argument("--horizon", type=int, default=600, help="control steps per episode")
+    p.add_argument("--trained", action="append", default=[], metavar="ENV=RUN_DIR",
+                   help="also limit-check the policy of this training run (repeatable)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=ROOT / "results" / "performance")
     args = p.parse_args(argv)
@@ -52,10 +56,14 @@ def main(argv: list[str] | None = None) -> int:
             p.error(f"--{name} must be a positive integer, got {getattr(args, name)}")
     if args.episodes < 0:
         p.error(f"--episodes must be >= 0, got {args.episodes}")
+    trained = dict(item.split("=", 1) for item in args.trained if "=" in item)
+    if len(trained) != len(args.trained) or not set(trained) <= set(args.envs):
+        p.error(f"--trained takes ENV=RUN_DIR with ENV among --envs {args.envs}, got "
+                f"{args.trained}")
     command = " ".join(["python scripts/profile_step.py", *(argv if argv is not None
                                                             else sys.argv[1:])])
     path = run_profile(args.envs, args.batch, args.steps, args.repeats, args.episodes,
-                       args.horizon, args.seed, args.out, command)
+                       args.horizon, args.seed, args.out, command, trained)
     print(f"wrote {path}", file=sys.stderr)
     return 0
 

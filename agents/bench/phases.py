@@ -25,7 +25,6 @@ far the trajectories drift apart (the check before a stage may be dropped).
 
 from __future__ import annotations
 
-import copy
 import functools
 import statistics
 import time
@@ -40,23 +39,20 @@ from mujoco import mjx
 import envs
 from agents.ppo.rollout import POOL_DEPTH, pool_block
 from envs.evaluate import hand_designed_policy
+from envs.physics import set_constraint_stages
 from envs.wrappers import wrap
 
 #: The MJX model variants timed as the physics floor.
 PHYSICS_VARIANTS = ("as_is", "contact_free", "contact_free_1iter")
 
-_FREE_FLAGS = ("mjDSBL_CONSTRAINT", "mjDSBL_CONTACT", "mjDSBL_EQUALITY", "mjDSBL_FRICTIONLOSS",
-               "mjDSBL_LIMIT")
-
-
 def physics_model(mj_model: mujoco.MjModel, variant: str) -> mjx.Model:
-    """The MJX model of ``mj_model`` in :data:`PHYSICS_VARIANTS` ``variant``."""
+    """The MJX model of ``mj_model`` in :data:`PHYSICS_VARIANTS` ``variant``: ``as_is`` with
+    MuJoCo's constraint pipeline on (the MJCF as generated), ``contact_free`` with it off (what
+    the environments run, docs/design.md §5.8), ``contact_free_1iter`` also with one solver
+    iteration."""
     if variant not in PHYSICS_VARIANTS:
         raise ValueError(f"variant must be one of {PHYSICS_VARIANTS}, got {variant!r}")
-    m = copy.deepcopy(mj_model)
-    if variant != "as_is":
-        for flag in _FREE_FLAGS:
-            m.opt.disableflags |= int(getattr(mujoco.mjtDisableBit, flag))
+    m = set_constraint_stages(mj_model, variant == "as_is")
     if variant == "contact_free_1iter":
         m.opt.iterations = 1
     return mjx.put_model(m)
@@ -149,39 +145,55 @@ def phase_programs(env_name: str, batch: int, steps: int, key: jax.Array
     return out
 
 
-def limit_excursions(env_name: str, episodes: int, steps: int, key: jax.Array
-                     ) -> dict[str, float]:
-    """The hand-designed policy over ``episodes`` scenes × ``steps`` control steps, with the
-    model as generated and with the contact-free model (same scenes, no auto-reset):
-    ``max_excess_<variant>`` (rad beyond a joint limit, 0 if never), ``max_abs_dq`` (largest
-    joint-position difference between the two runs) and ``final_abs_dq_p99``."""
+def limit_excursions(env_name: str, episodes: int, steps: int, key: jax.Array,
+                     policy: Callable[[Any], jax.Array] | None = None) -> dict[str, float]:
+    """``policy`` (a function of the environment state; default the hand-designed RMP² policy)
+    over ``episodes`` scenes × ``steps`` control steps, with MuJoCo's constraint pipeline on
+    (``as_is``) and off (``contact_free``, what the environment runs), from the same scenes
+    without auto-reset: ``max_excess_<variant>`` (rad beyond a joint limit, 0 if never),
+    ``max_abs_dq`` (largest joint-position difference between the two runs),
+    ``final_abs_dq_p99`` (its 99th percentile over episodes at the last step) and
+    ``repeat_max_abs_dq`` (the same difference between two runs of ``as_is``: 0 on a
+    deterministic device, the device's own run-to-run spread on a GPU)."""
     base = envs.make(env_name)
-    policy = hand_designed_policy(base)
+    policy = policy if policy is not None else hand_designed_policy(base)
     lo = jnp.where(jnp.isfinite(base._q_lower), base._q_lower, -jnp.inf)
     hi = base._q_upper
+    keys = jax.random.split(key, episodes)
 
-    def run(model):
+    def program(model: mjx.Model) -> Callable[[jax.Array], Any]:
+        data0 = mjx.make_data(model)
+
         def one(k):
             s = base.reset(k)
+            s = s.replace(pipeline_state=data0.replace(
+                qpos=s.pipeline_state.qpos, qvel=s.pipeline_state.qvel,
+                ctrl=s.pipeline_state.ctrl))
 
             def body(s, _):
                 s = base.step(s, policy(s))
                 q = s.pipeline_state.qpos
                 return s, (q, jnp.max(jnp.maximum(q - hi, lo - q)))
             return jax.lax.scan(body, s, None, length=steps)[1]
-        base.mjx_model, base._data0 = model, mjx.make_data(model)
-        return jax.jit(jax.vmap(one))(jax.random.split(key, episodes))
+        return jax.jit(jax.vmap(one))
 
-    as_is, data0 = base.mjx_model, base._data0
-    q_a, ex_a = run(as_is)
-    q_f, ex_f = run(physics_model(base.mj_model, "contact_free"))
-    base.mjx_model, base._data0 = as_is, data0
+    own = base.mjx_model
+    try:
+        base.mjx_model = physics_model(base.mj_model, "as_is")
+        run_as_is = program(base.mjx_model)
+        q_a, ex_a = run_as_is(keys)
+        q_r, _ = run_as_is(keys)
+        base.mjx_model = physics_model(base.mj_model, "contact_free")
+        q_f, ex_f = program(base.mjx_model)(keys)
+    finally:
+        base.mjx_model = own
     dq = jnp.max(jnp.abs(q_a - q_f), axis=-1)
     return {"episodes": episodes, "steps": steps,
             "max_excess_as_is": float(jnp.maximum(jnp.max(ex_a), 0.0)),
             "max_excess_contact_free": float(jnp.maximum(jnp.max(ex_f), 0.0)),
             "max_abs_dq": float(jnp.max(dq)),
-            "final_abs_dq_p99": float(jnp.percentile(dq[:, -1], 99))}
+            "final_abs_dq_p99": float(jnp.percentile(dq[:, -1], 99)),
+            "repeat_max_abs_dq": float(jnp.max(jnp.abs(q_a - q_r)))}
 
 
 __all__ = ["PHYSICS_VARIANTS", "limit_excursions", "phase_programs",

@@ -1,7 +1,7 @@
 """The control-step profile of the reaching environments (docs/reports/performance.md):
 phase timings (:mod:`agents.bench.phases`), GPU kernels per control step from
-``jax.profiler`` traces, and the joint-limit check of the contact-free model, written as the
-``performance`` study (``results/performance/summary.json``).
+``jax.profiler`` traces, and the joint-limit checks of dropping the constraint stages,
+written as the ``performance`` study (``results/performance/summary.json``).
 
 :func:`kernel_stats` runs a compiled phase under ``jax.profiler.trace`` (with a Perfetto trace)
 and counts the kernels on the GPU's compute streams and their busy time; at a few hundred
@@ -22,6 +22,7 @@ from typing import Any
 import jax
 
 from agents.bench.phases import limit_excursions, phase_programs, time_phase
+from agents.run.loading import deterministic_policy, env_policy, load_run
 from mjxrmp.results.summary import run_record, write_summary, write_text
 
 #: Phases whose kernels are counted (the rest are timed only).
@@ -61,14 +62,36 @@ def kernel_stats(fn: Any, steps: int) -> dict[str, float] | None:
     return {"kernels_per_step": count / steps, "busy_us_per_step": busy / steps}
 
 
+def limit_checks(env_name: str, episodes: int, horizon: int, key: jax.Array,
+                 trained_run: str | None = None) -> dict[str, dict[str, Any]]:
+    """The joint-limit check (:func:`agents.bench.phases.limit_excursions`) of the
+    hand-designed policy and, with ``trained_run`` (a training run directory of this
+    environment), of that run's first seed's deterministic policy at its newest checkpoint."""
+    out: dict[str, dict[str, Any]] = {
+        "hand_designed": limit_excursions(env_name, episodes, horizon, key)}
+    if trained_run is not None:
+        loaded = load_run(trained_run)
+        if loaded.spec.env != env_name:
+            raise ValueError(f"trained run {trained_run} trained on {loaded.spec.env!r}, "
+                             f"not {env_name!r}")
+        policy = env_policy(*deterministic_policy(loaded, 0))
+        out["trained"] = {**limit_excursions(env_name, episodes, horizon, key, policy),
+                          "run": f"{loaded.spec.policy}, {loaded.step} iterations, seed "
+                                 f"{loaded.seeds[0]}"}
+    return out
+
+
 def profile_env(env_name: str, batch: int, steps: int, repeats: int, episodes: int,
-                horizon: int, key: jax.Array) -> dict[str, Any]:
-    """Phase timings, kernel counts and the joint-limit check for one environment."""
+                horizon: int, key: jax.Array, trained_run: str | None = None
+                ) -> dict[str, Any]:
+    """Phase timings, kernel counts and the joint-limit checks (:func:`limit_checks`) for one
+    environment."""
     k_phase, k_limit = jax.random.split(key)
     programs = phase_programs(env_name, batch, steps, k_phase)
     phases = {name: time_phase(fn, steps, repeats) for name, fn in programs.items()}
     kernels = {name: kernel_stats(programs[name], steps) for name in TRACED}
-    limits = limit_excursions(env_name, episodes, horizon, k_limit) if episodes else None
+    limits = (limit_checks(env_name, episodes, horizon, k_limit, trained_run) if episodes
+              else None)
     return {"phases": phases, "kernels": kernels, "limits": limits}
 
 
@@ -106,14 +129,15 @@ def write_profile(results: dict[str, dict[str, Any]], batch: int, out_dir: Path,
             " / ".join(_ms(p, n) for n in ("physics_contact_free", "physics_as_is",
                                            "env_step_raw", "env_step", "env_step_pooled",
                                            "reset"))]})
-        if r["limits"] is not None:
-            lim = r["limits"]
+        for who, lim in (r["limits"] or {}).items():
+            policy = ("hand-designed policy" if who == "hand_designed"
+                      else f"trained policy ({lim['run']})")
             headline.append({"run": run, "cells": [
-                f"{env_name}: hand-designed policy, {lim['episodes']} episodes × "
-                f"{lim['steps']} steps, largest joint-limit excess as generated / contact-free "
-                "(rad), largest joint drift between them (rad)",
-                "—", f"{lim['max_excess_as_is']:.2g} / {lim['max_excess_contact_free']:.2g}, "
-                     f"{lim['max_abs_dq']:.3g}"]})
+                f"{env_name}: {policy}, {lim['episodes']} episodes × {lim['steps']} steps, "
+                "largest joint-limit excess with / without the constraint stages (rad); largest "
+                "joint drift between the two, and between two runs with them (rad)",
+                "—", f"{lim['max_excess_as_is']:.2g} / {lim['max_excess_contact_free']:.2g}; "
+                     f"{lim['max_abs_dq']:.3g}, {lim['repeat_max_abs_dq']:.3g}"]})
     columns = ["environment", "phase", "ms per control step", "× floor", "kernels per step"]
     summary = {"study": "performance", "title": "Control-step profile",
                "report": "docs/reports/performance.md", "runs": {run: record},
@@ -128,17 +152,25 @@ def write_profile(results: dict[str, dict[str, Any]], batch: int, out_dir: Path,
 
 
 def run_profile(env_names: list[str], batch: int, steps: int, repeats: int, episodes: int,
-                horizon: int, seed: int, out_dir: Path, command: str) -> Path:
-    """Profile every environment of ``env_names`` (:func:`profile_env`), printing a line per
-    environment, and write the study (:func:`write_profile`)."""
+                horizon: int, seed: int, out_dir: Path, command: str,
+                trained_runs: dict[str, str] | None = None) -> Path:
+    """Profile every environment of ``env_names`` (:func:`profile_env`; ``trained_runs`` maps an
+    environment to a training run whose policy is limit-checked too), printing a line per
+    environment, and write the study (:func:`write_profile`) after each environment."""
+    trained_runs = trained_runs or {}
+    unknown = sorted(set(trained_runs) - set(env_names))
+    if unknown:
+        raise ValueError(f"trained_runs names environments {unknown} that are not profiled "
+                         f"({env_names})")
     key = jax.random.PRNGKey(seed)
     results = collections.OrderedDict()
     for i, env_name in enumerate(env_names):
         results[env_name] = profile_env(env_name, batch, steps, repeats, episodes, horizon,
-                                        jax.random.fold_in(key, i))
+                                        jax.random.fold_in(key, i), trained_runs.get(env_name))
         print(env_name, {k: _ms(results[env_name]["phases"], k)
                          for k in results[env_name]["phases"]}, flush=True)
-    return write_profile(dict(results), batch, out_dir, command)
+        path = write_profile(dict(results), batch, out_dir, command)  # a cut run keeps these
+    return path
 
 
-__all__ = ["TRACED", "kernel_stats", "profile_env", "run_profile", "write_profile"]
+__all__ = ["TRACED", "kernel_stats", "limit_checks", "profile_env", "run_profile", "write_profile"]

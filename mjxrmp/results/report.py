@@ -20,7 +20,8 @@ from pathlib import Path
 from mjxrmp.results.summary import SummaryError, load_summary
 
 #: Sections of BENCHMARKS.md in reading order; any other study follows, sorted by name.
-STUDY_ORDER = ("rmp2_evaluation", "ch3", "environments", "performance", "peers", "ppo", "ch6",
+STUDY_ORDER = ("rmp2_evaluation", "ch3", "environments", "performance", "peers", "ppo",
+               "training_speed", "ch6",
                "lfd_lasa", "lfd_franka", "offline", "ch7", "ch8", "fig8_2")
 INTRO = """# Benchmarks
 

@@ -20,7 +20,8 @@ from mjxrmp.results.summary import load_summary
 
 def test_contact_free_model_disables_the_constraint_stages():
     """``contact_free`` sets the five disable flags (and one solver iteration for
-    ``contact_free_1iter``) on a copy; the environment's own model is left alone."""
+    ``contact_free_1iter``) and ``as_is`` clears them, on a copy; the environment's own model
+    is left alone."""
     env = envs.make("franka")
     before = env.mj_model.opt.disableflags
     free = physics_model(env.mj_model, "contact_free")
@@ -28,6 +29,8 @@ def test_contact_free_model_disables_the_constraint_stages():
     for flag in ("mjDSBL_CONSTRAINT", "mjDSBL_CONTACT", "mjDSBL_LIMIT"):
         assert free.opt.disableflags & int(getattr(mujoco.mjtDisableBit, flag))
     assert int(one.opt.iterations) == 1
+    assert not physics_model(env.mj_model, "as_is").opt.disableflags & int(
+        mujoco.mjtDisableBit.mjDSBL_LIMIT)
     assert env.mj_model.opt.disableflags == before
     with pytest.raises(ValueError, match="variant must be one of"):
         physics_model(env.mj_model, "fast")
@@ -43,7 +46,7 @@ def test_profile_of_every_phase_is_written_as_a_study(tmp_path):
     assert set(r["phases"]) == names
     assert all(0 < t["per_step_s"] < 10 for t in r["phases"].values())
     assert all(k is None for k in r["kernels"].values())
-    lim = r["limits"]
+    lim = r["limits"]["hand_designed"]
     assert lim["max_excess_as_is"] >= 0 and np.isfinite(lim["max_abs_dq"])
     path = write_profile({"three_link/env3": r}, 2, tmp_path, "python scripts/profile_step.py")
     summary = load_summary(path)

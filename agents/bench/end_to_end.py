@@ -1,0 +1,121 @@
+"""End-to-end training time, measured the way a user meets it: ``scripts/train.py`` run as a
+fresh process and timed from launch to exit (imports, compile, training, checkpoints), and the
+time a repeated short command takes to reach and finish its first iteration with JAX's
+persistent compilation cache cold and then warm (docs/design.md §5.6). Written as the
+``training_speed`` study (``results/training_speed/summary.json``)."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from mjxrmp.results.summary import run_record, write_summary, write_text
+
+ROOT = Path(__file__).resolve().parents[2]
+#: The line :func:`agents.run.training.result_summary` prints about time.
+_TIMES = re.compile(r"compile ([\d.]+) s, training ([\d.]+) s, ([\d.e+]+) env steps/s")
+
+
+def timed_train(args: list[str], cache_dir: str) -> dict[str, Any]:
+    """Run ``scripts/train.py ARGS --no-progress`` in a fresh process with the compile cache in
+    ``cache_dir``: ``wall_s`` from launch to exit and, from its summary line, ``compile_s``,
+    ``train_s`` and ``steps_per_s``. A failing command raises ``RuntimeError`` with its last
+    output lines."""
+    env = {**os.environ, "MJXRMP_COMPILE_CACHE": cache_dir}
+    cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), *args, "--no-progress"]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        tail = "\n".join((proc.stdout + proc.stderr).splitlines()[-8:])
+        raise RuntimeError(f"train.py {' '.join(args)} exited {proc.returncode}:\n{tail}")
+    m = _TIMES.search(proc.stderr)
+    if m is None:
+        raise RuntimeError(f"train.py {' '.join(args)} printed no timing line")
+    return {"wall_s": wall, "compile_s": float(m[1]), "train_s": float(m[2]),
+            "steps_per_s": float(m[3])}
+
+
+def measure_training_speed(env: str, policy: str, seeds: list[int], iterations: int,
+                           preset: str, work_dir: Path) -> dict[str, Any]:
+    """``full``: the whole run (``iterations``, chunks of 25, checkpoints every 50) with a fresh
+    compile cache; ``first_cold`` / ``first_warm``: the same settings for one iteration (chunks
+    of one, a new run directory each), first with a cache that holds no one-iteration program,
+    then repeated with it."""
+    base = ["--env", env, "--policy", policy, "--preset", preset,
+            "--seeds", *map(str, seeds)]
+    work_dir.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=work_dir) as tmp:
+        cache = os.path.join(tmp, "cache")
+        full = timed_train([*base, "--iterations", str(iterations), "--log-every", "25",
+                            "--checkpoint-every", "50", "--out", f"{tmp}/full"], cache)
+        one = [*base, "--iterations", "1", "--log-every", "1", "--checkpoint-every", "1"]
+        first_cold = timed_train([*one, "--out", f"{tmp}/first_cold"], cache)
+        first_warm = timed_train([*one, "--out", f"{tmp}/first_warm"], cache)
+    return {"env": env, "policy": policy, "seeds": list(seeds), "iterations": iterations,
+            "preset": preset, "full": full, "first_cold": first_cold, "first_warm": first_warm}
+
+
+def _row(r: dict[str, Any]) -> list[str]:
+    f = r["full"]
+    return [r["env"], r["policy"], str(len(r["seeds"])), str(r["iterations"]),
+            f"{f['wall_s']:.0f}", f"{f['compile_s']:.1f}", f"{f['train_s']:.0f}",
+            f"{f['train_s'] / r['iterations']:.3f}", f"{f['steps_per_s']:.3g}",
+            f"{r['first_cold']['wall_s']:.1f}", f"{r['first_warm']['wall_s']:.1f}"]
+
+
+COLUMNS = ["environment", "policy", "seeds", "iterations", "end to end (s)", "compile (s)",
+           "training (s)", "s per iteration", "env steps/s", "first iteration, cold cache (s)",
+           "first iteration, warm cache (s)"]
+
+
+def write_training_speed(results: list[dict[str, Any]], out_dir: Path, command: str) -> Path:
+    """``out_dir/summary.json`` and ``table.csv`` of the ``training_speed`` study."""
+    record = run_record(command)
+    run = "train_" + record["device"].split()[0].lower().replace("(", "")
+    headline = []
+    for r in results:
+        f = r["full"]
+        headline.append({"run": run, "cells": [
+            f"{r['env']} {r['policy']}, {r['preset']} preset, {len(r['seeds'])} seeds × "
+            f"{r['iterations']} iterations: end to end from launch (compile, training)",
+            "—", f"{f['wall_s']:.0f} s ({f['compile_s']:.0f} s, {f['train_s']:.0f} s)"]})
+        headline.append({"run": run, "cells": [
+            f"{r['env']} {r['policy']}: a repeated one-iteration command, launch to exit, "
+            "compile cache cold / warm", "—",
+            f"{r['first_cold']['wall_s']:.1f} s / {r['first_warm']['wall_s']:.1f} s"]})
+    rows = [_row(r) for r in results]
+    summary = {"study": "training_speed", "title": "Training end to end",
+               "report": "docs/reports/training_speed.md", "runs": {run: record},
+               "headline": {"columns": ["quantity", "thesis or peer figure", "ours"],
+                            "rows": headline},
+               "tables": {"runs": {"columns": COLUMNS, "rows": rows}},
+               "deviations": [], "raw": results}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_text(out_dir / "table.csv",
+               "\n".join(",".join(c) for c in [COLUMNS, *rows]) + "\n")
+    return write_summary(out_dir / "summary.json", summary)
+
+
+def run_training_speed(items: list[tuple[str, str]], seeds: list[int], iterations: int,
+                       preset: str, work_dir: Path, out_dir: Path, command: str) -> Path:
+    """Measure every ``(env, policy)`` of ``items`` (:func:`measure_training_speed`), printing
+    a line each and writing the study after each (a cut run keeps what it measured)."""
+    results: list[dict[str, Any]] = []
+    path = out_dir / "summary.json"
+    for env, policy in items:
+        results.append(measure_training_speed(env, policy, seeds, iterations, preset,
+                                              work_dir))
+        print(" | ".join(_row(results[-1])), flush=True)
+        path = write_training_speed(results, out_dir, command)
+    return path
+
+
+__all__ = ["COLUMNS", "measure_training_speed", "run_training_speed", "timed_train",
+           "write_training_speed"]

@@ -1,0 +1,46 @@
+"""Which MuJoCo pipeline stages the reaching environments run (docs/design.md §5.8).
+
+Neither robot model has contacts or equality constraints (every geom has ``contype =
+conaffinity = 0``) and the environments keep the joints inside their ranges by clipping the
+servo's position target (:mod:`envs.reaching`), so MuJoCo's constraint pipeline has no work
+that changes the motion; yet under MJX it is a large part of a control step (building the
+constraint rows and running the solver's warm start, and, wherever a Franka joint touches a
+limit, solver iterations with a 50-step line search for every environment of the batch).
+:func:`set_constraint_stages` switches the whole pipeline off or back on.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import mujoco
+
+#: The ``mjtDisableBit`` flags of the constraint pipeline: the constraint solver itself and the
+#: contact, equality, friction-loss and joint-limit rows.
+CONSTRAINT_STAGES = ("mjDSBL_CONSTRAINT", "mjDSBL_CONTACT", "mjDSBL_EQUALITY",
+                     "mjDSBL_FRICTIONLOSS", "mjDSBL_LIMIT")
+
+__all__ = ["CONSTRAINT_STAGES", "constraint_stages_on", "set_constraint_stages"]
+
+
+def _mask() -> int:
+    mask = 0
+    for flag in CONSTRAINT_STAGES:
+        mask |= int(getattr(mujoco.mjtDisableBit, flag))
+    return mask
+
+
+def set_constraint_stages(mj_model: mujoco.MjModel, on: bool) -> mujoco.MjModel:
+    """A copy of ``mj_model`` with MuJoCo's constraint pipeline (:data:`CONSTRAINT_STAGES`)
+    enabled (``on=True``: the model as its MJCF generates it) or disabled."""
+    m = copy.deepcopy(mj_model)
+    if on:
+        m.opt.disableflags &= ~_mask()
+    else:
+        m.opt.disableflags |= _mask()
+    return m
+
+
+def constraint_stages_on(mj_model: mujoco.MjModel) -> bool:
+    """Whether every stage of :data:`CONSTRAINT_STAGES` is enabled in ``mj_model``."""
+    return not (int(mj_model.opt.disableflags) & _mask())

@@ -1,0 +1,41 @@
+"""Training timed end to end (agents.bench.end_to_end): a failing command is reported with its
+exit status, the study validates and renders, and (slow) a real tiny measurement runs
+scripts/train.py three times."""
+
+from __future__ import annotations
+
+import pytest
+
+from agents.bench.end_to_end import COLUMNS, run_training_speed, timed_train, write_training_speed
+from mjxrmp.results.summary import load_summary
+
+
+def test_a_failing_training_command_is_reported(tmp_path):
+    """An unknown environment makes train.py exit 2; timed_train names the status and shows
+    the script's own message."""
+    with pytest.raises(RuntimeError, match=r"exited 2:(.|\n)*unknown --env"):
+        timed_train(["--env", "nowhere"], str(tmp_path / "cache"))
+
+
+def test_training_speed_study_validates(tmp_path):
+    """The study of one measurement: two headline rows, one table row per run, the CSV."""
+    times = {"wall_s": 40.0, "compile_s": 20.0, "train_s": 15.0, "steps_per_s": 1e4}
+    result = {"env": "three_link/env3", "policy": "nn", "seeds": [0, 1], "iterations": 5,
+              "preset": "cpu", "full": times, "first_cold": {**times, "wall_s": 30.0},
+              "first_warm": {**times, "wall_s": 9.0}}
+    summary = load_summary(write_training_speed([result], tmp_path, "python x.py"))
+    assert summary["study"] == "training_speed"
+    assert [r["cells"][2] for r in summary["headline"]["rows"]] == [
+        "40 s (20 s, 15 s)", "30.0 s / 9.0 s"]
+    assert summary["tables"]["runs"]["rows"][0][7] == "3.000"  # 15 s / 5 iterations
+    assert (tmp_path / "table.csv").read_text().splitlines()[0] == ",".join(COLUMNS)
+
+
+@pytest.mark.slow  # three train.py processes with compiles; the pieces are tested above
+def test_training_speed_measures_real_runs(tmp_path):
+    """One iteration of the CPU preset: the whole run, then a cold and a warm repeat."""
+    path = run_training_speed([("three_link/env3", "nn")], [0], 1, "cpu", tmp_path / "work",
+                              tmp_path / "out", "python scripts/bench_training.py")
+    raw = load_summary(path)["raw"][0]
+    assert all(raw[k]["wall_s"] > raw[k]["compile_s"] >= 0
+               for k in ("full", "first_cold", "first_warm"))

@@ -1,0 +1,94 @@
+"""Dropping MuJoCo's constraint pipeline (envs.physics, docs/design.md §5.8): the environments
+run without it by default, ``constraint_stages=True`` restores the model as generated, the
+trajectories of both agree (3-link exactly, Franka to float rounding), and the joint-limit
+check of agents.bench.phases takes any policy, trained runs included."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+import envs
+from agents.bench.phases import limit_excursions
+from agents.bench.profile import limit_checks
+from agents.run.spec import RunSpec, preset
+from agents.run.training import run_training
+from envs.physics import CONSTRAINT_STAGES, constraint_stages_on, set_constraint_stages
+
+
+def test_environments_drop_the_constraint_pipeline_by_default():
+    """Every flag of CONSTRAINT_STAGES is set in the default model and cleared with
+    ``constraint_stages=True``; set_constraint_stages copies and round-trips."""
+    for name in ("three_link/env3", "franka"):
+        off, on = envs.make(name), envs.make(name, constraint_stages=True)
+        assert not off.constraint_stages and on.constraint_stages
+        for flag in CONSTRAINT_STAGES:
+            bit = int(getattr(mujoco.mjtDisableBit, flag))
+            assert off.mj_model.opt.disableflags & bit
+            assert not on.mj_model.opt.disableflags & bit
+        assert not constraint_stages_on(off.mj_model) and constraint_stages_on(on.mj_model)
+        back = set_constraint_stages(set_constraint_stages(on.mj_model, False), True)
+        assert back.opt.disableflags == on.mj_model.opt.disableflags
+        assert not constraint_stages_on(off.mj_model)  # the copy left the original alone
+    with pytest.raises(ValueError, match="constraint_stages"):
+        envs.make("franka", constraint_stages="yes")
+
+
+def _rollout(env, steps: int, batch: int) -> np.ndarray:
+    keys = jax.random.split(jax.random.PRNGKey(0), batch)
+    actions = jax.random.uniform(jax.random.PRNGKey(1), (steps, batch, env.action_size),
+                                 minval=-1.0, maxval=1.0)
+
+    def body(s, a):
+        s = jax.vmap(env.step)(s, a)
+        return s, s.pipeline_state.qpos
+
+    return np.asarray(jax.jit(lambda k: jax.lax.scan(body, jax.vmap(env.reset)(k),
+                                                     actions)[1])(keys))
+
+
+@pytest.mark.parametrize("name,tol", [("three_link/env3", 0.0), ("franka", 1e-5)])
+def test_trajectories_with_and_without_the_constraint_pipeline_agree(name, tol):
+    """Random actions, 40 control steps × 4 environments: the joint positions agree exactly for
+    the 3-link (no limited joints) and to 1e-5 rad for the Franka (float rounding of the
+    solver's unconstrained pass; no limit is touched)."""
+    off = _rollout(envs.make(name), 40, 4)
+    on = _rollout(envs.make(name, constraint_stages=True), 40, 4)
+    assert np.isfinite(off).all()
+    np.testing.assert_allclose(off, on, rtol=0, atol=tol)
+
+
+def test_limit_check_takes_any_policy():
+    """limit_excursions with a policy that drives every joint at full acceleration: finite
+    figures, a same-model repeat that is exactly 0 on the CPU, and the 3-link (no limits)
+    never exceeds one."""
+    env = envs.make("three_link/env3")
+
+    def full_speed(state):
+        return jnp.ones((env.action_size,))
+
+    lim = limit_excursions("three_link/env3", 3, 5, jax.random.PRNGKey(0), full_speed)
+    assert lim["episodes"] == 3 and lim["steps"] == 5
+    assert lim["max_excess_as_is"] == lim["max_excess_contact_free"] == 0.0
+    assert lim["repeat_max_abs_dq"] == 0.0
+    assert lim["max_abs_dq"] == 0.0
+
+
+@pytest.mark.slow  # the same API is checked by test_limit_check_takes_any_policy
+def test_limit_check_of_a_trained_run(tmp_path):
+    """limit_checks loads a trained run's first seed and checks it beside the hand-designed
+    policy; a run of another environment is refused."""
+    spec = RunSpec(env="three_link/env3", policy="nn", seeds=(0,), log_every=1,
+                   checkpoint_every=1,
+                   ppo=preset("cpu", num_envs=4, rollout_length=8, num_minibatches=2,
+                              update_epochs=1, total_iterations=1))
+    run_training(spec, str(tmp_path), progress=False)
+    out = limit_checks("three_link/env3", 2, 4, jax.random.PRNGKey(0), str(tmp_path))
+    assert set(out) == {"hand_designed", "trained"}
+    assert out["trained"]["run"].startswith("nn, 1 iterations")
+    assert np.isfinite(out["trained"]["max_abs_dq"])
+    with pytest.raises(ValueError, match="trained on"):
+        limit_checks("three_link/env1", 2, 4, jax.random.PRNGKey(0), str(tmp_path))
