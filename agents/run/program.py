@@ -17,6 +17,7 @@ import numpy as np
 from jax.sharding import Mesh
 
 from agents.ppo import PPOConfig, Trainer, TrainState, make_env_and_policy, make_trainer
+from agents.run.program_cache import exported
 from agents.run.spec import RunSpec
 
 #: The ``axis_name`` of the vmap over seeds (lets the rollout's reset pools take one branch for
@@ -34,15 +35,36 @@ class Program:
     run: Callable
     executables: dict[int, Any] = dataclasses.field(default_factory=dict)
     compile_seconds: float = 0.0
+    #: What shapes the program (JSON data), for :mod:`agents.run.program_cache`; None keeps
+    #: nothing between processes (sharded programs).
+    description: dict[str, Any] | None = None
 
     def executable(self, state: TrainState, n: int) -> Any:
-        """The compiled ``run(·, n)`` (compiled on first use; the time is added to
-        ``compile_seconds``)."""
+        """The compiled ``run(·, n)`` (compiled on first use, from the exported program of an
+        earlier process where there is one: :func:`agents.run.program_cache.exported`; the time
+        is added to ``compile_seconds``)."""
         if n not in self.executables:
             t0 = time.perf_counter()
-            self.executables[n] = self.run.lower(state, n).compile()
+            self.executables[n] = self._from_artifact(state, n) or self.run.lower(
+                state, n).compile()
             self.compile_seconds += time.perf_counter() - t0
         return self.executables[n]
+
+    def _from_artifact(self, state: TrainState, n: int) -> Callable | None:
+        """``state -> (state, metrics)`` compiled from the exported chunk program, or None."""
+        if self.description is None or jax.process_count() > 1:
+            return None
+        return exported(lambda s: self.run(s, n), (state,), {**self.description, "chunk": n})
+
+    def initial_state(self, keys: jax.Array) -> TrainState:
+        """``init(keys)``, from the exported init program of an earlier process where there
+        is one (the time is added to ``compile_seconds``)."""
+        t0 = time.perf_counter()
+        init = None
+        if self.description is not None and jax.process_count() == 1:
+            init = exported(self.init, (keys,), {**self.description, "program": "init"})
+        self.compile_seconds += time.perf_counter() - t0
+        return (init or self.init)(keys)
 
 
 @functools.lru_cache(maxsize=8)
@@ -54,7 +76,10 @@ def _program(env: str, policy: str, ppo: PPOConfig, mesh: Mesh | None,
     init = jax.jit(jax.vmap(trainer.init, axis_name=SEED_AXIS))
     run = jax.jit(jax.vmap(trainer.run, in_axes=(0, None), axis_name=SEED_AXIS),
                   static_argnums=1)
-    return Program(trainer, init, run)
+    description = None if mesh is not None else {
+        "program": "ppo_chunk", "env": env, "policy": policy,
+        "ppo": dataclasses.asdict(ppo), "reset_pools": reset_pools}
+    return Program(trainer, init, run, description=description)
 
 
 def build(spec: RunSpec, mesh: Mesh | None = None, reset_pools: bool = False) -> Program:

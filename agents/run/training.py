@@ -138,7 +138,7 @@ def _initial_state(program: Program, spec: RunSpec, ckpt_dir: str, resume: bool
     match ``spec.identity()``)."""
     keys = seed_keys(spec.seeds)
     if not resume:
-        return program.init(keys), {}, 0
+        return program.initial_state(keys), {}, 0
     template = jax.eval_shape(program.init, keys)
     state, meta = checkpoint.restore(ckpt_dir, template, expected=spec.identity())
     return state, _history_from_json(meta["history"]), int(meta["iteration"])

@@ -22,11 +22,11 @@ def test_training_speed_study_validates(tmp_path):
     times = {"wall_s": 40.0, "compile_s": 20.0, "train_s": 15.0, "steps_per_s": 1e4}
     result = {"env": "three_link/env3", "policy": "nn", "seeds": [0, 1], "iterations": 5,
               "preset": "cpu", "full": times, "first_cold": {**times, "wall_s": 30.0},
-              "first_warm": {**times, "wall_s": 9.0}}
+              "first_warm": {**times, "wall_s": 9.0, "first_chunk_s": 6.5}}
     summary = load_summary(write_training_speed([result], tmp_path, "python x.py"))
     assert summary["study"] == "training_speed"
     assert [r["cells"][2] for r in summary["headline"]["rows"]] == [
-        "40 s (20 s, 15 s)", "30.0 s / 9.0 s"]
+        "40 s (20 s, 15 s)", "30.0 s / 9.0 s (6.5 s)"]
     assert summary["tables"]["runs"]["rows"][0][7] == "3.000"  # 15 s / 5 iterations
     assert (tmp_path / "table.csv").read_text().splitlines()[0] == ",".join(COLUMNS)
 
@@ -39,3 +39,4 @@ def test_training_speed_measures_real_runs(tmp_path):
     raw = load_summary(path)["raw"][0]
     assert all(raw[k]["wall_s"] > raw[k]["compile_s"] >= 0
                for k in ("full", "first_cold", "first_warm"))
+    assert 0 < raw["first_warm"]["first_chunk_s"] < raw["first_warm"]["wall_s"]
