@@ -83,8 +83,15 @@ def exported(fn: Callable[..., Any], args: tuple[Any, ...], description: dict[st
         return None
     leaves, in_tree = jax.tree.flatten(args)
     path = folder / f"{program_key(description, args)}.jaxexport"
+    loaded = None
     if path.exists():
-        exp, out_tree = _load(path)
+        try:
+            loaded = _load(path)
+        except Exception as e:  # any unreadable artifact is exported again
+            warnings.warn(f"unreadable program artifact {path} ({type(e).__name__}: {e}); "
+                          "exporting it again", stacklevel=2)
+    if loaded is not None:
+        exp, out_tree = loaded
     else:
         box: dict[str, Any] = {}
 

@@ -52,6 +52,18 @@ def test_exported_function_round_trips_and_is_read_back(cache_dir):
     assert len(traced) == 2
 
 
+def test_an_unreadable_artifact_is_exported_again(cache_dir):
+    """A damaged artifact file gives a warning naming it and is replaced by a good one."""
+    args = (jnp.arange(3.0),)
+    exported(jnp.cos, args, {"what": "damaged"})
+    (path,) = artifact_dir().iterdir()
+    path.write_bytes(b"not an artifact")
+    with pytest.warns(UserWarning, match="unreadable program artifact"):
+        call = exported(jnp.cos, args, {"what": "damaged"})
+    np.testing.assert_array_equal(call(*args), jnp.cos(args[0]))
+    assert exported(jnp.cos, args, {"what": "damaged"}) is not None  # readable again
+
+
 def test_nothing_is_kept_without_a_compile_cache():
     before = jax.config.jax_compilation_cache_dir
     jax.config.update("jax_compilation_cache_dir", None)
