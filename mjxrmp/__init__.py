@@ -8,6 +8,8 @@ computation runs. The short names below are the public entry points of the READM
 * :mod:`mjxrmp.learned` — flows, learned metrics and leaves, the nominal-trajectory potential;
 * :mod:`mjxrmp.robots` — the 3-link and Franka kinematics and their MJCF models;
 * :mod:`mjxrmp.policies` — the hand-designed RMP² policies of the reaching environments;
+* :mod:`mjxrmp.residual` — the residual RMP policy split into state-only parts and its learned
+  leaf;
 * :mod:`mjxrmp.geometry` — point–obstacle distances;
 * :mod:`mjxrmp.metrics` — trajectory-comparison metrics (RMSE, DTW, Fréchet, swept area);
 * :mod:`mjxrmp.data` — the LASA and Franka demonstration data sets;
@@ -39,6 +41,7 @@ __all__ = [
     "metrics",
     "natural",
     "policies",
+    "residual",
     "results",
     "rmp2",
     "robots",

@@ -118,10 +118,19 @@ class PPONetworks:
         """The statistics the networks read: ``stats``, or None without normalisation."""
         return stats if self.normalize_observations else None
 
-    def policy_apply(self, params: Any, obs: jax.Array, stats: RunningStats
-                     ) -> tuple[jax.Array, jax.Array]:
-        """``(mean, log_std)`` of the policy at ``obs``."""
-        return self.policy.apply(params, obs, self.norm(stats))
+    def policy_apply(self, params: Any, obs: jax.Array, stats: RunningStats,
+                     features: Any = None) -> tuple[jax.Array, jax.Array]:
+        """``(mean, log_std)`` of the policy at ``obs`` (with the policy's precomputed
+        ``features`` of ``obs`` where it has them: :meth:`policy_features`)."""
+        if features is None:
+            return self.policy.apply(params, obs, self.norm(stats))
+        return self.policy.apply(params, obs, self.norm(stats), features)
+
+    def policy_features(self, obs: jax.Array) -> Any:
+        """The parameter-free part of the policy at ``obs`` (its ``precompute(obs)``), or None
+        for a policy without one; what :meth:`policy_apply` then needs no longer compute."""
+        precompute = getattr(self.policy, "precompute", None)
+        return None if precompute is None else precompute(obs)
 
     def value_apply(self, params: Any, obs: jax.Array, stats: RunningStats) -> jax.Array:
         """State value at ``obs`` (normalised first when the networks normalise)."""

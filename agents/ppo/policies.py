@@ -54,6 +54,7 @@ from agents.ppo.normalization import RunningStats, normalize
 from envs.wrappers import RMPInEnv
 from mjxrmp import policies as rmp_policies
 from mjxrmp.geometry import Obstacles
+from mjxrmp.residual import ResidualParts, residual_from_parts, residual_parts
 from mjxrmp.robots import get
 
 KINDS = ("nn", "nn_residual", "rmp_residual", "rmp_residual_env", "hand_designed")
@@ -208,27 +209,37 @@ class RMPResidualPolicy(nn.Module):
     metric_scale: float = math.sqrt(5.0)
     log_std_init: float = -1.0
 
+    def precompute(self, obs: jax.Array) -> tuple[jax.Array, ResidualParts]:
+        """``(net_input, parts)`` at observations of any batch shape: the network's input
+        ``[x, ẋ, g, {o_i}]`` and the parameter-free :class:`mjxrmp.residual.ResidualParts` of
+        the RMP² tree. Computed once per state, they let :meth:`__call__` evaluate many
+        parameter values (PPO's epochs) without the hand-designed tree."""
+        cfg = self.rmp_config
+
+        def one(o):
+            net_in, q, qd, goal, obstacles = residual_features(self.spec, o)
+            return net_in, residual_parts(cfg, q, qd, goal, obstacles)
+
+        return one(obs) if obs.ndim == 1 else _over_batch(one, obs)
+
     @nn.compact
-    def __call__(self, obs: jax.Array, norm: RunningStats | None = None
+    def __call__(self, obs: jax.Array, norm: RunningStats | None = None,
+                 features: tuple[jax.Array, ResidualParts] | None = None
                  ) -> tuple[jax.Array, jax.Array]:
         del norm  # the network reads physical features [x, ẋ, g, {o_i}], not the observation
         robot = get(self.spec.robot)
         m, dof = robot.workspace_dim, robot.dof
-        single = obs.ndim == 1
-        batch = obs[None] if single else obs
-        net_in, q, qd, goal, obstacles = _over_batch(
-            lambda o: residual_features(self.spec, o), batch)
+        net_in, parts = self.precompute(obs) if features is None else features
         raw = MLP(tuple(self.hidden_sizes), m * m + m, self.activation, self.out_scale,
                   name="residual")(net_in)
         A_r = self.metric_scale * jnp.tanh(raw[..., : m * m]).reshape((*raw.shape[:-1], m, m))
         a_r = jnp.tanh(raw[..., m * m:])
-        cfg = self.rmp_config
-        mean = _over_batch(
-            lambda *a: rmp_policies.residual_rmp_acceleration(cfg, *a),
-            q, qd, goal, obstacles, A_r, a_r,
-        )
+        if raw.ndim == 1:
+            mean = residual_from_parts(parts, A_r, a_r)
+        else:
+            mean = _over_batch(lambda a, p, A: residual_from_parts(p, A, a), a_r, parts, A_r)
         log_std = self.param("log_std", nn.initializers.constant(self.log_std_init), (dof,))
-        return (mean[0] if single else mean), log_std
+        return mean, log_std
 
 
 def make_policy(kind: str, env, **overrides) -> nn.Module:

@@ -1,5 +1,8 @@
 """Learning from one rollout: GAE, then ``update_epochs × num_minibatches`` Adam steps on the
 clipped-surrogate loss (thesis §6.2.3), each epoch a fresh shuffle (``lax.scan`` throughout).
+What a policy computes from the state alone (the hand-designed RMP² tree of the residual RMP
+policy: :meth:`agents.ppo.networks.PPONetworks.policy_features`) is computed once per rollout
+state and shuffled with the batch.
 
 The batch ``(T, N, ...)`` is laid out environment-major in ``blocks`` equal blocks of whole
 environments (one per device under a mesh, so shuffling never moves data between devices);
@@ -69,7 +72,8 @@ def make_update(nets: PPONetworks, tx: optax.GradientTransformation, config: PPO
     constrain_mb = batch_axis_sharding(mesh, config.minibatch_size)
 
     def loss(params, batch, stats):
-        return ppo_loss(params, batch, lambda p, o: nets.policy_apply(p, o, stats),
+        features = batch.get("policy_features")
+        return ppo_loss(params, batch, lambda p, o: nets.policy_apply(p, o, stats, features),
                         lambda p, o: nets.value_apply(p, o, stats), config.clip_eps,
                         config.vf_coef, config.ent_coef, config.normalize_advantages)
 
@@ -97,6 +101,9 @@ def make_update(nets: PPONetworks, tx: optax.GradientTransformation, config: PPO
                        config.gamma, config.gae_lambda)
         flat = {"obs": tr.obs, "actions": tr.actions, "log_probs": tr.log_probs,
                 "advantages": adv, "returns": ret}
+        features = nets.policy_features(tr.obs)  # once per state, not once per epoch
+        if features is not None:
+            flat["policy_features"] = features
         flat = constrain_blocks(jax.tree.map(lambda x: _to_blocks(x, blocks), flat))
         (params, opt_state, _, _), upd = jax.lax.scan(
             update_epoch, (ts.params, ts.opt_state, stats, flat),

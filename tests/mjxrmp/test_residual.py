@@ -1,0 +1,86 @@
+"""The residual RMP policy split into state-only parts and the learned leaf (mjxrmp.residual):
+in float64 it equals the whole-tree formulation (mjxrmp.policies.residual_rmp_acceleration)
+for random states, obstacles and network outputs, on both robots; the PPO policy module gives
+the same mean and the same parameter gradient with precomputed parts as without."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import envs
+from agents.ppo.policies import make_policy
+from mjxrmp import policies
+from mjxrmp.geometry import Obstacles
+from mjxrmp.residual import residual_from_parts, residual_parts
+from mjxrmp.robots import get
+
+
+def _case(robot: str, seed: int):
+    r = get(robot)
+    d, m = r.dof, r.workspace_dim
+    k = jax.random.split(jax.random.PRNGKey(seed), 6)
+    q = 0.5 * jax.random.uniform(k[0], (d,), jnp.float64, -1.0, 1.0)
+    qd = 0.5 * jax.random.normal(k[1], (d,), jnp.float64)
+    goal = r.end_effector(q) + 0.3 * jax.random.normal(k[2], (m,), jnp.float64)
+    obstacles = Obstacles(1.0 + jax.random.normal(k[3], (3, m), jnp.float64),
+                          jnp.full((3,), 0.1, jnp.float64), jnp.array([1.0, 1.0, 0.0]))
+    A_r = jnp.sqrt(5.0) * jnp.tanh(jax.random.normal(k[4], (m, m), jnp.float64))
+    a_r = jnp.tanh(jax.random.normal(k[5], (m,), jnp.float64))
+    return q, qd, goal, obstacles, A_r, a_r
+
+
+@jax.jit
+def _both(cfg, q, qd, goal, obstacles, A_r, a_r):
+    ref = policies.residual_rmp_acceleration(cfg, q, qd, goal, obstacles, A_r, a_r)
+    return ref, residual_from_parts(residual_parts(cfg, q, qd, goal, obstacles), A_r, a_r)
+
+
+@settings(max_examples=12, deadline=None)
+@given(robot=st.sampled_from(["three_link", "franka"]), seed=st.integers(0, 2**16))
+def test_parts_plus_learned_leaf_equal_the_whole_tree_in_float64(robot, seed):
+    jax.config.update("jax_enable_x64", True)
+    try:
+        cfg = policies.default_config(robot, "residual_rmp")
+        q, qd, goal, obstacles, A_r, a_r = _case(robot, seed)
+        ref, got = _both(cfg, q, qd, goal, obstacles, A_r, a_r)
+        assert got.dtype == jnp.float64
+        np.testing.assert_allclose(got, ref, rtol=1e-10,
+                                   atol=1e-10 * float(jnp.max(jnp.abs(ref))))
+    finally:
+        jax.config.update("jax_enable_x64", False)
+
+
+def test_parts_need_a_target_leaf():
+    cfg = policies.default_config("three_link", "hand_designed")
+    q, qd, goal, obstacles, _, _ = _case("three_link", 0)
+    with pytest.raises(ValueError, match="target leaf"):
+        residual_parts(cfg.__class__(**{**cfg.__dict__, "target": None}), q, qd, goal,
+                       obstacles)
+
+
+@pytest.mark.parametrize("env_name", ["three_link/env3"])
+def test_policy_with_precomputed_parts_matches_and_differentiates_alike(env_name):
+    """RMPResidualPolicy: mean and the gradient of a loss in the parameters agree (float32)
+    with and without precomputed parts, for a batch of real observations."""
+    env = envs.make(env_name)
+    module = make_policy("rmp_residual", env)
+    obs = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 6)).obs
+    params = module.init(jax.random.PRNGKey(1), obs)
+    params = jax.tree.map(lambda p: p + 0.1 * jnp.ones_like(p), params)  # leave the init
+    feats = module.precompute(obs)
+
+    def loss(p, f):
+        mean, _ = module.apply(p, obs, None, f)
+        return jnp.sum(jnp.sin(mean))
+
+    np.testing.assert_allclose(module.apply(params, obs, None, feats)[0],
+                               module.apply(params, obs)[0], rtol=1e-5, atol=1e-5)
+    g_with = jax.grad(loss)(params, feats)
+    g_without = jax.grad(lambda p: loss(p, None))(params)
+    jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5),
+                 g_with, g_without)
