@@ -34,7 +34,10 @@ Kinds (:func:`make_policy`):
 
 Every module's ``__call__(obs, norm=None)`` accepts running observation statistics
 (:mod:`agents.ppo.normalization`); only MLPs that read the observation normalise it, RMP² always
-decodes the raw observation.
+decodes the raw observation. The modules with a hand-designed part also have
+``precompute(obs)``, its parameter-free part, and accept it back as ``__call__(obs, norm,
+features)``: PPO's update computes it once per rollout state instead of once per epoch
+(docs/design.md §5.7).
 """
 
 from __future__ import annotations
@@ -165,13 +168,17 @@ class HandDesignedPolicy(nn.Module):
     rmp_config: rmp_policies.PolicyConfig
     log_std_init: float = -1.0
 
+    def precompute(self, obs: jax.Array) -> jax.Array:
+        """The mean at ``obs`` (it has no parameters), computed once per state by PPO."""
+        return hand_designed_mean(self.spec, self.rmp_config, obs)
+
     @nn.compact
-    def __call__(self, obs: jax.Array, norm: RunningStats | None = None
-                 ) -> tuple[jax.Array, jax.Array]:
+    def __call__(self, obs: jax.Array, norm: RunningStats | None = None,
+                 features: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
         del norm  # nothing learned reads the observation
         dof = get(self.spec.robot).dof
         log_std = self.param("log_std", nn.initializers.constant(self.log_std_init), (dof,))
-        return hand_designed_mean(self.spec, self.rmp_config, obs), log_std
+        return self.precompute(obs) if features is None else features, log_std
 
 
 class NNResidualPolicy(nn.Module):
@@ -184,14 +191,20 @@ class NNResidualPolicy(nn.Module):
     out_scale: float = 0.1
     log_std_init: float = -1.0
 
+    def precompute(self, obs: jax.Array) -> jax.Array:
+        """The hand-designed acceleration at ``obs`` (parameter-free), computed once per state
+        by PPO."""
+        return hand_designed_mean(self.spec, self.rmp_config, obs)
+
     @nn.compact
-    def __call__(self, obs: jax.Array, norm: RunningStats | None = None
-                 ) -> tuple[jax.Array, jax.Array]:
+    def __call__(self, obs: jax.Array, norm: RunningStats | None = None,
+                 features: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
         dof = get(self.spec.robot).dof
         residual = MLP(tuple(self.hidden_sizes), dof, self.activation, self.out_scale,
                        name="mean")(normalize(norm, obs))
         log_std = self.param("log_std", nn.initializers.constant(self.log_std_init), (dof,))
-        return residual + hand_designed_mean(self.spec, self.rmp_config, obs), log_std
+        base = self.precompute(obs) if features is None else features
+        return residual + base, log_std
 
 
 class RMPResidualPolicy(nn.Module):

@@ -84,3 +84,15 @@ def test_policy_with_precomputed_parts_matches_and_differentiates_alike(env_name
     g_without = jax.grad(lambda p: loss(p, None))(params)
     jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5),
                  g_with, g_without)
+
+
+@pytest.mark.parametrize("kind", ["nn_residual", "hand_designed"])
+def test_other_policies_with_a_precomputed_base_match(kind):
+    """The policies whose hand-designed part is an additive acceleration precompute it too."""
+    env = envs.make("three_link/env3")
+    module = make_policy(kind, env)
+    obs = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(2), 5)).obs
+    params = module.init(jax.random.PRNGKey(3), obs)
+    np.testing.assert_array_equal(module.apply(params, obs, None, module.precompute(obs))[0],
+                                  module.apply(params, obs)[0])
+
