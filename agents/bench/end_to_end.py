@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from mjxrmp.results.summary import run_record, write_summary, write_text
+from mjxrmp.results.summary import run_record, write_study
 
 ROOT = Path(__file__).resolve().parents[2]
 #: The line :func:`agents.run.training.result_summary` prints about time.
@@ -92,30 +92,22 @@ COLUMNS = ["environment", "policy", "seeds", "iterations", "end to end (s)", "co
 def write_training_speed(results: list[dict[str, Any]], out_dir: Path, command: str) -> Path:
     """``out_dir/summary.json`` and ``table.csv`` of the ``training_speed`` study."""
     record = run_record(command)
-    run = "train_" + record["device"].split()[0].lower().replace("(", "")
     headline = []
     for r in results:
         f = r["full"]
-        headline.append({"run": run, "cells": [
+        headline.append([
             f"{r['env']} {r['policy']}, {r['preset']} preset, {len(r['seeds'])} seeds × "
             f"{r['iterations']} iterations: end to end from launch (compile, training)",
-            "—", f"{f['wall_s']:.0f} s ({f['compile_s']:.0f} s, {f['train_s']:.0f} s)"]})
-        headline.append({"run": run, "cells": [
+            "—", f"{f['wall_s']:.0f} s ({f['compile_s']:.0f} s, {f['train_s']:.0f} s)"])
+        headline.append([
             f"{r['env']} {r['policy']}: a repeated one-iteration command, launch to exit with "
             "the compile cache cold / warm (launch to its first iteration done, warm)", "—",
             f"{r['first_cold']['wall_s']:.1f} s / {r['first_warm']['wall_s']:.1f} s "
-            f"({_first(r['first_warm'])} s)"]})
-    rows = [_row(r) for r in results]
-    summary = {"study": "training_speed", "title": "Training end to end",
-               "report": "docs/reports/training_speed.md", "runs": {run: record},
-               "headline": {"columns": ["quantity", "thesis or peer figure", "ours"],
-                            "rows": headline},
-               "tables": {"runs": {"columns": COLUMNS, "rows": rows}},
-               "deviations": [], "raw": results}
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_text(out_dir / "table.csv",
-               "\n".join(",".join(c) for c in [COLUMNS, *rows]) + "\n")
-    return write_summary(out_dir / "summary.json", summary)
+            f"({_first(r['first_warm'])} s)"])
+    head = {"study": "training_speed", "title": "Training end to end",
+            "report": "docs/reports/training_speed.md"}
+    return write_study(out_dir, head, "train_" + record["device"].split()[0].lower(), record,
+                       headline, ("runs", COLUMNS, [_row(r) for r in results]), results)
 
 
 def run_training_speed(items: list[tuple[str, str]], seeds: list[int], iterations: int,

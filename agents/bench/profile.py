@@ -23,7 +23,7 @@ import jax
 
 from agents.bench.phases import limit_excursions, phase_programs, time_phase
 from agents.run.loading import deterministic_policy, env_policy, load_run
-from mjxrmp.results.summary import run_record, write_summary, write_text
+from mjxrmp.results.summary import run_record, write_study
 
 #: Phases whose kernels are counted (the rest are timed only).
 TRACED = ("physics_as_is", "physics_contact_free", "env_step_raw", "env_step",
@@ -116,39 +116,32 @@ def write_profile(results: dict[str, dict[str, Any]], batch: int, out_dir: Path,
                   command: str) -> Path:
     """``out_dir/summary.json`` and ``table.csv`` of the ``performance`` study."""
     record = run_record(command)
-    run = "profile_" + record["device"].split()[0].lower().replace("(", "")
     rows = [row for env_name, r in results.items() for row in _rows(env_name, r)]
     headline = []
     for env_name, r in results.items():
         p = r["phases"]
-        headline.append({"run": run, "cells": [
+        headline.append([
             f"{env_name}, {batch} environments: contact-free physics floor / physics as "
             "generated / environment step / training step with a reset at every step / "
             "with reset pools / reset, ms per control step",
             "—",
             " / ".join(_ms(p, n) for n in ("physics_contact_free", "physics_as_is",
                                            "env_step_raw", "env_step", "env_step_pooled",
-                                           "reset"))]})
+                                           "reset"))])
         for who, lim in (r["limits"] or {}).items():
             policy = ("hand-designed policy" if who == "hand_designed"
                       else f"trained policy ({lim['run']})")
-            headline.append({"run": run, "cells": [
+            headline.append([
                 f"{env_name}: {policy}, {lim['episodes']} episodes × {lim['steps']} steps, "
                 "largest joint-limit excess with / without the constraint stages (rad); largest "
                 "joint drift between the two, and between two runs with them (rad)",
                 "—", f"{lim['max_excess_as_is']:.2g} / {lim['max_excess_contact_free']:.2g}; "
-                     f"{lim['max_abs_dq']:.3g}, {lim['repeat_max_abs_dq']:.3g}"]})
+                     f"{lim['max_abs_dq']:.3g}, {lim['repeat_max_abs_dq']:.3g}"])
     columns = ["environment", "phase", "ms per control step", "× floor", "kernels per step"]
-    summary = {"study": "performance", "title": "Control-step profile",
-               "report": "docs/reports/performance.md", "runs": {run: record},
-               "headline": {"columns": ["quantity", "thesis or peer figure", "ours"],
-                            "rows": headline},
-               "tables": {"phases": {"columns": columns, "rows": rows}},
-               "deviations": [], "raw": results}
-    out_dir.mkdir(parents=True, exist_ok=True)
-    csv = "\n".join(",".join(str(c) for c in row) for row in [columns, *rows]) + "\n"
-    write_text(out_dir / "table.csv", csv)
-    return write_summary(out_dir / "summary.json", summary)
+    head = {"study": "performance", "title": "Control-step profile",
+            "report": "docs/reports/performance.md"}
+    run = "profile_" + record["device"].split()[0].lower().replace("(", "")
+    return write_study(out_dir, head, run, record, headline, ("phases", columns, rows), results)
 
 
 def run_profile(env_names: list[str], batch: int, steps: int, repeats: int, episodes: int,
