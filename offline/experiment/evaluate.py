@@ -20,7 +20,8 @@ once it ends, so returns are exact) and returns scalars:
 ``evaluate`` is jittable and vmappable over ``params`` (seeds) and ``key``:
 ``jax.vmap(lambda p: ev.evaluate(act, p, key))(stacked_params)`` evaluates every seed's policy
 on the same episodes in one program. One compiled program per ``act`` is cached on the
-evaluator.
+evaluator, and :func:`make_evaluator` returns the evaluator it built before for the same
+arguments (the same reference returns and compiled programs; results are unchanged).
 
 **Reference returns.** ``J_expert`` and ``J_random`` are computed once, when the evaluator is
 built, on ``reference_episodes`` (default 256) episodes drawn with the fixed key
@@ -52,6 +53,8 @@ from offline.data.rollouts import make_env
 REFERENCE_EPISODES = 256
 #: Baselines that define the normalised score.
 BASELINES = ("expert", "random")
+#: The evaluators :func:`make_evaluator` built in this process, by their arguments.
+_EVALUATORS: dict[tuple, Evaluator] = {}
 
 
 def normalized_score(returns: Any, expert_return: float, random_return: float) -> Any:
@@ -179,21 +182,43 @@ def make_evaluator(env_name: str, num_episodes: int, *, horizon: int | None = No
         raise ValueError(f"reference_seed must be an integer, got {reference_seed!r}")
     if env_kwargs is not None and not isinstance(env_kwargs, Mapping):
         raise ValueError(f"env_kwargs must be a mapping or None, got {type(env_kwargs).__name__}")
+    if horizon is not None:
+        horizon = check_int(horizon, "horizon")
+    args = (env_name, num_episodes, horizon, env_kwargs, reference_episodes, int(reference_seed))
+    key = (*args[:3], _kwargs_key(env_kwargs), *args[4:])
+    try:
+        hash(key)
+    except TypeError:  # an unhashable environment argument: built, not cached
+        return _build_evaluator(*args)
+    if key not in _EVALUATORS:
+        _EVALUATORS[key] = _build_evaluator(*args)
+    return _EVALUATORS[key]
+
+
+def _kwargs_key(env_kwargs: Mapping[str, Any] | None) -> tuple | None:
+    """``env_kwargs`` as a tuple of items (a cache key; unhashable values make it unhashable)."""
+    return None if env_kwargs is None else tuple(sorted(env_kwargs.items()))
+
+
+def _build_evaluator(env_name: str, num_episodes: int, horizon: int | None,
+                     env_kwargs: Mapping[str, Any] | None, reference_episodes: int,
+                     reference_seed: int) -> Evaluator:
+    """The :class:`Evaluator` of :func:`make_evaluator` with its reference returns (checked
+    arguments; not cached)."""
     env = make_env(env_name, env_kwargs)
     if not isinstance(env, ReachEnv):
         raise ValueError(f"env_name={env_name!r} is not a reaching environment with a "
                          f"hand-designed expert (envs.reaching.ReachEnv); the normalised score "
                          f"needs one")
-    horizon = env.horizon if horizon is None else check_int(horizon, "horizon")
-    ev = Evaluator(env_name, env, num_episodes, horizon, reference_episodes,
-                   int(reference_seed))
-    key = jax.random.PRNGKey(int(reference_seed))
+    horizon = env.horizon if horizon is None else horizon
+    ev = Evaluator(env_name, env, num_episodes, horizon, reference_episodes, reference_seed)
+    key = jax.random.PRNGKey(reference_seed)
     for name in BASELINES:
         s = ev.evaluate_baseline(name, key)
         ev.reference.update({f"{name}_return": float(s["mean_return"]),
                              f"{name}_safe_pct": float(s["safe_pct"]),
                              f"{name}_success_pct": float(s["success_pct"])})
-    ev.reference.update(episodes=reference_episodes, seed=int(reference_seed))
+    ev.reference.update(episodes=reference_episodes, seed=reference_seed)
     if not ev.reference["expert_return"] > ev.reference["random_return"]:
         raise ValueError(f"the expert's mean return {ev.reference['expert_return']:.4g} does not "
                          f"exceed the random policy's {ev.reference['random_return']:.4g} on "

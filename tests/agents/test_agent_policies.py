@@ -41,7 +41,14 @@ def _inputs(env, states):
 
 def _preset_acceleration(variant, q, qd, goal, obstacles):
     cfg = rmp_policies.default_config("three_link", variant)
-    return jax.vmap(lambda *a: rmp_policies.acceleration(cfg, *a))(q, qd, goal, obstacles)
+    return jax.jit(jax.vmap(lambda *a: rmp_policies.acceleration(cfg, *a)))(
+        q, qd, goal, obstacles)
+
+
+def _init_apply(pol, seed, obs):
+    """``pol``'s parameters from ``PRNGKey(seed)`` and its jitted ``apply`` (RMP² run op by op
+    costs several times its compile)."""
+    return jax.jit(pol.init)(jax.random.PRNGKey(seed), obs[0]), jax.jit(pol.apply)
 
 
 def _zero_subtree(params, name):
@@ -105,11 +112,11 @@ def test_make_policy_defaults(three_link):
 def test_log_std_init_and_shapes(three_link, kind):
     env, states = three_link
     pol = make_policy(kind, env)
-    params = pol.init(jax.random.PRNGKey(1), states.obs[0])
-    mean, log_std = pol.apply(params, states.obs)
+    params, apply = _init_apply(pol, 1, states.obs)
+    mean, log_std = apply(params, states.obs)
     assert mean.shape == (N, 3)
     np.testing.assert_array_equal(log_std, -jnp.ones(3))
-    mean1, _ = pol.apply(params, states.obs[0])
+    mean1, _ = apply(params, states.obs[0])
     np.testing.assert_allclose(mean1, mean[0], rtol=1e-5, atol=1e-6)
     assert bool(jnp.all(jnp.isfinite(mean)))
 
@@ -118,11 +125,11 @@ def test_nn_residual_is_base_plus_small_mlp(three_link):
     env, states = three_link
     base = _preset_acceleration("residual_base", *_inputs(env, states))
     pol = make_policy("nn_residual", env)
-    params = pol.init(jax.random.PRNGKey(2), states.obs[0])
-    mean, _ = pol.apply(params, states.obs)
+    params, apply = _init_apply(pol, 2, states.obs)
+    mean, _ = apply(params, states.obs)
     assert float(jnp.max(jnp.abs(mean - base))) < 0.5
     assert float(jnp.max(jnp.abs(mean - base))) > 0.0
-    mean0, _ = pol.apply(_zero_subtree(params, "mean"), states.obs)
+    mean0, _ = apply(_zero_subtree(params, "mean"), states.obs)
     np.testing.assert_allclose(mean0, base, rtol=1e-4, atol=1e-5)
 
 
@@ -130,10 +137,10 @@ def test_rmp_residual_zero_residual_is_preset(three_link):
     env, states = three_link
     base = _preset_acceleration("residual_rmp", *_inputs(env, states))
     pol = make_policy("rmp_residual", env)
-    params = pol.init(jax.random.PRNGKey(3), states.obs[0])
-    mean0, _ = pol.apply(_zero_subtree(params, "residual"), states.obs)
+    params, apply = _init_apply(pol, 3, states.obs)
+    mean0, _ = apply(_zero_subtree(params, "residual"), states.obs)
     np.testing.assert_allclose(mean0, base, rtol=1e-4, atol=1e-4)
-    mean, _ = pol.apply(params, states.obs)
+    mean, _ = apply(params, states.obs)
     assert float(jnp.max(jnp.abs(mean - base))) < 0.5
 
 
@@ -141,18 +148,18 @@ def test_hand_designed_equals_preset(three_link):
     env, states = three_link
     base = _preset_acceleration("hand_designed", *_inputs(env, states))
     pol = make_policy("hand_designed", env)
-    params = pol.init(jax.random.PRNGKey(5), states.obs[0])
+    params, apply = _init_apply(pol, 5, states.obs)
     assert list(params["params"]) == ["log_std"]
-    mean, _ = pol.apply(params, states.obs)
+    mean, _ = apply(params, states.obs)
     np.testing.assert_allclose(mean, base, rtol=1e-4, atol=1e-4)
 
 
 def test_rmp_residual_gradients_finite_nonzero(three_link):
     env, states = three_link
     pol = make_policy("rmp_residual", env)
-    params = pol.init(jax.random.PRNGKey(6), states.obs[0])
+    params = jax.jit(pol.init)(jax.random.PRNGKey(6), states.obs[0])
     w = jax.random.normal(jax.random.PRNGKey(7), (N, 3))
-    grads = jax.grad(lambda p: jnp.sum(w * pol.apply(p, states.obs)[0]))(params)
+    grads = jax.jit(jax.grad(lambda p: jnp.sum(w * pol.apply(p, states.obs)[0])))(params)
     for path, g in jax.tree_util.tree_leaves_with_path(grads["params"]["residual"]):
         assert bool(jnp.all(jnp.isfinite(g))), path
         assert float(jnp.max(jnp.abs(g))) > 0.0, path
@@ -196,17 +203,14 @@ def test_normalisation_never_reaches_rmp2(three_link):
     env, states = three_link
     stats = RunningStats(jnp.float32(10.0), jnp.full((26,), 3.0), jnp.full((26,), 0.01))
     for kind in ("hand_designed", "rmp_residual"):
-        pol = make_policy(kind, env)
-        params = pol.init(jax.random.PRNGKey(9), states.obs[0])
-        np.testing.assert_array_equal(pol.apply(params, states.obs, stats)[0],
-                                      pol.apply(params, states.obs)[0])
-    pol = make_policy("nn_residual", env)
-    params = pol.init(jax.random.PRNGKey(9), states.obs[0])
+        params, apply = _init_apply(make_policy(kind, env), 9, states.obs)
+        np.testing.assert_array_equal(apply(params, states.obs, stats)[0],
+                                      apply(params, states.obs)[0])
+    params, apply = _init_apply(make_policy("nn_residual", env), 9, states.obs)
     zeroed = _zero_subtree(params, "mean")
-    np.testing.assert_array_equal(pol.apply(zeroed, states.obs, stats)[0],
-                                  pol.apply(zeroed, states.obs)[0])
-    assert not np.allclose(pol.apply(params, states.obs, stats)[0],
-                           pol.apply(params, states.obs)[0])
+    np.testing.assert_array_equal(apply(zeroed, states.obs, stats)[0],
+                                  apply(zeroed, states.obs)[0])
+    assert not np.allclose(apply(params, states.obs, stats)[0], apply(params, states.obs)[0])
 
 
 def test_rmp_in_env_squashes_and_plumbs_the_residual_action(three_link):
@@ -214,11 +218,11 @@ def test_rmp_in_env_squashes_and_plumbs_the_residual_action(three_link):
     env, states = three_link
     wrapped = RMPInEnv(env)
     raw = jax.random.normal(jax.random.PRNGKey(4), (N, 6))
-    expected = jax.vmap(wrapped.joint_acceleration)(states, raw)
+    expected = jax.jit(jax.vmap(wrapped.joint_acceleration))(states, raw)
     A_r = math.sqrt(5.0) * jnp.tanh(raw[:, :4]).reshape(N, 2, 2)
     a_r = jnp.tanh(raw[:, 4:])
     cfg = rmp_policies.default_config("three_link", "residual_rmp")
-    got = jax.vmap(lambda *a: rmp_policies.residual_rmp_acceleration(cfg, *a))(
+    got = jax.jit(jax.vmap(lambda *a: rmp_policies.residual_rmp_acceleration(cfg, *a)))(
         *_inputs(env, states), A_r, a_r)
     np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-4)
 

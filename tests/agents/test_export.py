@@ -42,7 +42,9 @@ KINDS = ("rmp_residual", "nn")
 BATCHES = (1, 7)
 #: In practice the exported actions equal the compiled apply's bit for bit (same batch size);
 #: without export_policy's optimisation barrier constant folding moves rmp_residual by ~1e-5.
-TOL = dict(rtol=1e-6, atol=1e-6)
+#: float32 rounding: the exported program is compiled in another process, where XLA may fuse
+#: the RMP² resolve differently (accelerations of order 10, so a few ulp are a few 1e-6).
+TOL = dict(rtol=1e-5, atol=1e-5)
 
 
 def _subprocess_env() -> dict:

@@ -49,6 +49,8 @@ def _rollout(env, policy, batch: int, steps: int):
 
 
 ROLLOUT = _rollout(ENV, POLICY, batch=3, steps=40)
+#: One environment's reset and step, compiled once for the tests below.
+RESET, STEP = jax.jit(ENV.reset), jax.jit(ENV.step)
 
 
 @pytest.fixture(scope="module")
@@ -91,7 +93,7 @@ def test_bad_arguments_raise():
 
 
 def test_bad_actions_fail_before_tracing_and_nan_never_reaches_the_state():
-    state = jax.jit(ENV.reset)(jax.random.PRNGKey(0))
+    state = RESET(jax.random.PRNGKey(0))
     with pytest.raises(ValueError, match=r"action must have shape \(3,\)"):
         ENV.step(state, jnp.zeros(4))
     with pytest.raises(ValueError, match=r"jax\.vmap"):
@@ -102,7 +104,7 @@ def test_bad_actions_fail_before_tracing_and_nan_never_reaches_the_state():
         ENV.step(state, [0.0, 0.0, 0.0])
     with pytest.raises(ValueError, match=r"\(6,\)"):
         RMPInEnv(ENV).step(state, jnp.zeros(3))
-    out = jax.jit(ENV.step)(state, jnp.array([jnp.nan, jnp.inf, -jnp.inf]))
+    out = STEP(state, jnp.array([jnp.nan, jnp.inf, -jnp.inf]))
     assert all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree.leaves(out.pipeline_state)
                if jnp.issubdtype(x.dtype, jnp.floating))
     assert bool(jnp.all(jnp.isfinite(out.obs))) and float(out.metrics["nonfinite"]) == 0.0
@@ -160,10 +162,10 @@ def test_tracking_is_tight(rollout_a):
 
 
 def test_nonfinite_state_is_flagged_and_ends_episode():
-    state = jax.jit(ENV.reset)(jax.random.PRNGKey(0))
+    state = RESET(jax.random.PRNGKey(0))
     bad = state.replace(pipeline_state=state.pipeline_state.replace(
         qpos=jnp.full((3,), jnp.nan)))
-    out = jax.jit(ENV.step)(bad, jnp.zeros(3))
+    out = STEP(bad, jnp.zeros(3))
     assert float(out.done) == 1.0 and float(out.metrics["nonfinite"]) == 1.0
     assert float(out.reward) == -5.0 and bool(jnp.all(jnp.isfinite(out.obs)))
 
@@ -208,13 +210,13 @@ def test_collision_detection_matches_bruteforce_numpy():
 
 
 def test_step_terminates_on_collision():
-    state = jax.jit(ENV.reset)(jax.random.PRNGKey(1))
+    state = RESET(jax.random.PRNGKey(1))
     q = state.pipeline_state.qpos
     tip = three_link.end_effector(q)
     obstacles = Obstacles(jnp.stack([tip, tip + 5.0, tip + 6.0]), jnp.full((3,), 0.05),
                           jnp.ones(3))
     info = dict(state.info, obstacles=obstacles)
-    out = jax.jit(ENV.step)(state.replace(info=info), jnp.zeros(3))
+    out = STEP(state.replace(info=info), jnp.zeros(3))
     assert float(out.done) == 1.0 and float(out.metrics["collision"]) == 1.0
     assert float(out.info["episode_collided"]) == 1.0
     assert float(out.reward) < 0.0

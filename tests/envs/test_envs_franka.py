@@ -125,6 +125,9 @@ def test_collision_distances_match_bruteforce_numpy():
     assert 0 < hits < 50
 
 
+@pytest.mark.slow(reason="brax's training wrap is robot-independent: "
+                  "tests/envs/test_envs.py::test_brax_training_wrap_runs_unchanged makes the "
+                  "same checks on the 3-link; the Franka reset and step run in the shared rollout")
 def test_brax_training_wrap_runs_unchanged():
     env = brax_training.wrap(envs.make("franka"), episode_length=3)
     state = jax.jit(env.reset)(jax.random.split(jax.random.PRNGKey(0), 2))

@@ -337,7 +337,7 @@ def test_gds_closed_loop_lyapunov_and_invariant_set(solver):
     qd0 = jnp.array([0.5, -0.3, 0.2])
     dt, steps = 0.01, 2000
     qs, qds = jax.jit(lambda a, b: _rk4_rollout(accel, a, b, dt, steps))(q0, qd0)
-    V = np.asarray(jax.vmap(lambda q, qd: _arm_energy(q, qd, goal, center))(qs, qds))
+    V = np.asarray(jax.jit(jax.vmap(lambda q, qd: _arm_energy(q, qd, goal, center)))(qs, qds))
     assert np.all(np.isfinite(V))
     dV = np.diff(V)
     # exact solve: V̇ = −Σ ẋᵀBẋ ≤ 0 holds up to RK4 error. rmp2.resolve's regularisation
@@ -352,6 +352,6 @@ def test_gds_closed_loop_lyapunov_and_invariant_set(solver):
     assert float(jnp.linalg.norm(jax.grad(Phi_q)(qs[-1]))) < 1e-3
     # and the arm reached the goal while staying clear of the obstacle
     assert float(jnp.linalg.norm(end_effector(qs[-1]) - goal)) < 1e-3
-    clearance = jax.vmap(
-        lambda q: obstacle_distance(control_points(q), center, OBSTACLE_RADIUS))(qs)
+    clearance = jax.jit(jax.vmap(
+        lambda q: obstacle_distance(control_points(q), center, OBSTACLE_RADIUS)))(qs)
     assert float(clearance.min()) > 0.0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -37,18 +38,19 @@ def random_context(robot_name, rng):
 def test_policy_pullback_matches_float64_reference(robot_name):
     rng = np.random.default_rng(42)
     cfg = policies.default_config(robot_name)
+    # compiled once per robot (RMP² run op by op costs several times its compile)
+    pullback = jax.jit(functools.partial(rmp2.pullback, policies.task_map, policies.leaf_rmps))
+    acceleration = jax.jit(policies.acceleration)
     with jax.enable_x64(True):
         for _ in range(3):
             q, qd, goal, centers, radii = random_context(robot_name, rng)
             obs = make_obstacles(jnp.asarray(centers), jnp.asarray(radii))
             args = (jnp.asarray(goal), obs, cfg)
-            root = rmp2.pullback(policies.task_map, policies.leaf_rmps, jnp.asarray(q),
-                                 jnp.asarray(qd), *args)
+            root = pullback(jnp.asarray(q), jnp.asarray(qd), *args)
             M_ref, f_ref = reference_pullback(policies.task_map, policies.leaf_rmps, q, qd, *args)
             assert rel_err(root.M, M_ref) <= 1e-6
             assert rel_err(root.f, f_ref) <= 1e-6
-            qdd = policies.acceleration(cfg, jnp.asarray(q), jnp.asarray(qd), jnp.asarray(goal),
-                                        obs)
+            qdd = acceleration(cfg, jnp.asarray(q), jnp.asarray(qd), jnp.asarray(goal), obs)
             assert rel_err(qdd, reference_resolve(M_ref, f_ref)) <= 1e-6
 
 
@@ -58,13 +60,17 @@ def test_policy_float32_agrees_with_float64(robot_name):
     cfg = policies.default_config(robot_name)
     states = [random_context(robot_name, rng) for _ in range(4)]
 
+    @jax.jit
+    def root_and_qdd(*context):
+        root = policies.root(*context)
+        return root, rmp2.resolve(root)
+
     def run(dtype):
         out = []
         for q, qd, goal, centers, radii in states:
             obs = make_obstacles(jnp.asarray(centers, dtype), jnp.asarray(radii, dtype))
-            root = policies.root(cfg, jnp.asarray(q, dtype), jnp.asarray(qd, dtype),
-                                 jnp.asarray(goal, dtype), obs)
-            qdd = rmp2.resolve(root)
+            root, qdd = root_and_qdd(cfg, jnp.asarray(q, dtype), jnp.asarray(qd, dtype),
+                                     jnp.asarray(goal, dtype), obs)
             assert qdd.dtype == dtype
             out.append((root.M, root.f, qdd))
         return out
@@ -84,10 +90,11 @@ def test_gradient_wrt_policy_parameters_matches_finite_difference():
         q, qd, goal, centers, radii = (jnp.asarray(a) for a in random_context("three_link", rng))
         obs = make_obstacles(centers, radii)
 
+        @jax.jit
         def loss(c):
             return jnp.sum(policies.acceleration(c, q, qd, goal, obs) ** 2)
 
-        grads = jax.grad(loss)(cfg)
+        grads = jax.jit(jax.grad(loss))(cfg)
         for leaf, field in (("target", "k_p"), ("damping", "damping_gain"),
                             ("collision", "repulsion_std")):
             g = getattr(getattr(grads, leaf), field)
@@ -111,8 +118,9 @@ def test_inactive_obstacles_are_ignored():
     centers = centers.at[2].set(jnp.array([0.4, 0.0, 0.5]))  # close to the arm: matters if active
     masked = make_obstacles(centers, radii, active=jnp.array([1.0, 1.0, 0.0]))
     two = make_obstacles(centers[:2], radii[:2])
-    np.testing.assert_allclose(policies.acceleration(cfg, q, qd, goal, masked),
-                               policies.acceleration(cfg, q, qd, goal, two), rtol=1e-5, atol=1e-5)
+    acceleration = jax.jit(policies.acceleration)
+    np.testing.assert_allclose(acceleration(cfg, q, qd, goal, masked),
+                               acceleration(cfg, q, qd, goal, two), rtol=1e-5, atol=1e-5)
 
 
 def test_context_is_validated():

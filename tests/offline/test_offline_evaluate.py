@@ -77,6 +77,13 @@ def test_vmap_over_parameter_sets(ev):
     assert np.all(out["mean_return"] < ref["expert_return"])
 
 
+def test_the_same_arguments_return_the_cached_evaluator(ev):
+    """make_evaluator builds an evaluator once per process and arguments (reference returns
+    and compiled programs shared)."""
+    again = make_evaluator(ENV, 16, reference_episodes=REF_EPISODES, reference_seed=0)
+    assert again is ev and again.reference == ev.reference
+
+
 def test_bad_arguments_are_refused(ev):
     with pytest.raises(ValueError, match="valid names"):
         make_evaluator("three_link/env9", 4)

@@ -277,11 +277,6 @@ def test_ch7_expert_set_size_gets_its_own_data_cells_and_table(tmp_path):
         ch7_args([*base, "--expert-scale", "0"])
 
 
-#: The tests reading :func:`ch7_data` run in one xdist worker (``--dist loadgroup``), so the
-#: data are collected once per suite.
-CH7_DATA = pytest.mark.xdist_group("ch7_data")
-
-
 @pytest.fixture(scope="module")
 def ch7_data(tmp_path_factory) -> Path:
     """``reproduce_ch7.py --scale 1 --stage collect``'s ``data/`` (the mixed and expert sets of
@@ -291,7 +286,6 @@ def ch7_data(tmp_path_factory) -> Path:
     return out / "data"
 
 
-@CH7_DATA
 def test_ch7_learning_curves_end_at_the_final_scores(tmp_path, ch7_data):
     """``reproduce_ch7.py --curve``: one evaluation per chunk in the row, the last equal to the
     row's final evaluation (same parameters, same episodes)."""
@@ -307,7 +301,6 @@ def test_ch7_learning_curves_end_at_the_final_scores(tmp_path, ch7_data):
     assert row["eval_s"] > 0 and row["train_s"] > 0
 
 
-@CH7_DATA
 def test_ch7_oracle_is_trained_once_per_dynamics_dataset(tmp_path, ch7_data):
     """The Oracle reads only the dynamics data: ILfO, RLfO and RL-sample share ``D_X``, so one
     run gives all three rows (the later two copies marked ``shared_from``); IL and RL-expert
