@@ -34,6 +34,8 @@ class Program:
     init: Callable
     run: Callable
     executables: dict[int, Any] = dataclasses.field(default_factory=dict)
+    #: ``init`` per seed count (from its exported program where there is one).
+    inits: dict[int, Any] = dataclasses.field(default_factory=dict)
     compile_seconds: float = 0.0
     #: What shapes the program (JSON data), for :mod:`agents.run.program_cache`; None keeps
     #: nothing between processes (sharded programs).
@@ -45,26 +47,30 @@ class Program:
         is added to ``compile_seconds``)."""
         if n not in self.executables:
             t0 = time.perf_counter()
-            self.executables[n] = self._from_artifact(state, n) or self.run.lower(
+            self.executables[n] = self._from_artifact(
+                lambda s: self.run(s, n), (state,), {"chunk": n}) or self.run.lower(
                 state, n).compile()
             self.compile_seconds += time.perf_counter() - t0
         return self.executables[n]
 
-    def _from_artifact(self, state: TrainState, n: int) -> Callable | None:
-        """``state -> (state, metrics)`` compiled from the exported chunk program, or None."""
+    def _from_artifact(self, fn: Callable, args: tuple, what: dict[str, Any]
+                       ) -> Callable | None:
+        """``fn`` compiled from its exported program (:func:`agents.run.program_cache.exported`),
+        or None for a sharded or multi-process program."""
         if self.description is None or jax.process_count() > 1:
             return None
-        return exported(lambda s: self.run(s, n), (state,), {**self.description, "chunk": n})
+        return exported(fn, args, {**self.description, **what})
 
     def initial_state(self, keys: jax.Array) -> TrainState:
-        """``init(keys)``, from the exported init program of an earlier process where there
-        is one (the time is added to ``compile_seconds``)."""
-        t0 = time.perf_counter()
-        init = None
-        if self.description is not None and jax.process_count() == 1:
-            init = exported(self.init, (keys,), {**self.description, "program": "init"})
-        self.compile_seconds += time.perf_counter() - t0
-        return (init or self.init)(keys)
+        """``init(keys)``, compiled once per seed count, from the exported init program of an
+        earlier process where there is one (the time is added to ``compile_seconds``)."""
+        n = keys.shape[0]
+        if n not in self.inits:
+            t0 = time.perf_counter()
+            init = self._from_artifact(self.init, (keys,), {"program": "init"})
+            self.inits[n] = init or self.init
+            self.compile_seconds += time.perf_counter() - t0
+        return self.inits[n](keys)
 
 
 @functools.lru_cache(maxsize=8)
