@@ -7,12 +7,17 @@ that changes the motion; yet under MJX it is a large part of a control step (bui
 constraint rows and running the solver's warm start, and, wherever a Franka joint touches a
 limit, solver iterations with a 50-step line search for every environment of the batch).
 :func:`set_constraint_stages` switches the whole pipeline off or back on.
+
+:func:`substep_unroll` says how the physics substeps of a control step are looped
+(docs/design.md §5.9): written out one after the other on a GPU, where a loop's iteration costs
+kernel launches and copies of the whole simulation state, a loop elsewhere.
 """
 
 from __future__ import annotations
 
 import copy
 
+import jax
 import mujoco
 
 #: The ``mjtDisableBit`` flags of the constraint pipeline: the constraint solver itself and the
@@ -20,7 +25,7 @@ import mujoco
 CONSTRAINT_STAGES = ("mjDSBL_CONSTRAINT", "mjDSBL_CONTACT", "mjDSBL_EQUALITY",
                      "mjDSBL_FRICTIONLOSS", "mjDSBL_LIMIT")
 
-__all__ = ["CONSTRAINT_STAGES", "constraint_stages_on", "set_constraint_stages"]
+__all__ = ["CONSTRAINT_STAGES", "constraint_stages_on", "set_constraint_stages", "substep_unroll"]
 
 
 def _mask() -> int:
@@ -44,3 +49,12 @@ def set_constraint_stages(mj_model: mujoco.MjModel, on: bool) -> mujoco.MjModel:
 def constraint_stages_on(mj_model: mujoco.MjModel) -> bool:
     """Whether every stage of :data:`CONSTRAINT_STAGES` is enabled in ``mj_model``."""
     return not (int(mj_model.opt.disableflags) & _mask())
+
+
+def substep_unroll(substeps: int, unroll: bool | None) -> int:
+    """The ``lax.scan`` unroll of ``substeps`` physics substeps: all of them when ``unroll``
+    (default None: when JAX's default backend is a GPU), else 1. Unrolling changes neither the
+    operations nor their order, only how they are launched (docs/design.md §5.9)."""
+    if unroll is None:
+        unroll = jax.default_backend() == "gpu"
+    return substeps if unroll else 1

@@ -34,7 +34,9 @@ plane), Franka obstacles are balls.
 the models have no contacts or equality constraints and the position targets are clipped to the
 joint ranges, so the solver has nothing to do that changes the motion, but under MJX it costs up
 to a third of a control step. ``constraint_stages=True`` simulates the MJCF as generated
-(joint-limit constraints included).
+(joint-limit constraints included). On a GPU the substeps of a control step are written out
+rather than looped (``unroll_substeps``, default: on a GPU only; docs/design.md §5.9): the same
+operations, without a loop's per-iteration launches and state copies.
 
 **Reward** per substep :func:`envs.base.reach_reward` with ``τ = data.qfrc_actuator`` as the
 effort (``exp(−½‖x−g‖²/σ²) − Σ_i max(0, 1 − d_i/δ) − λ‖τ‖²`` clipped to ``[−5, 1]``; ``d_i`` the
@@ -73,7 +75,7 @@ from envs.base import (
     reach_reward,
     sample_first_valid,
 )
-from envs.physics import set_constraint_stages
+from envs.physics import set_constraint_stages, substep_unroll
 from mjxrmp.config import check_bool, check_choice, check_float, check_int
 from mjxrmp.geometry import Obstacles
 from mjxrmp.leaves.hand_designed import safe_norm
@@ -113,6 +115,7 @@ class ReachEnv(Env):
         observation: str = "default",
         measured_velocity: bool = False,
         constraint_stages: bool = False,
+        unroll_substeps: bool | None = None,
     ):
         name = type(self).__name__
         self.observation_variant = check_choice(observation, f"{name}.observation", OBSERVATIONS)
@@ -124,6 +127,9 @@ class ReachEnv(Env):
         self.measured_velocity = check_bool(measured_velocity, f"{name}.measured_velocity")
         self.robot: Robot = get(self.robot_name)
         self.constraint_stages = check_bool(constraint_stages, f"{name}.constraint_stages")
+        if unroll_substeps is not None:
+            check_bool(unroll_substeps, f"{name}.unroll_substeps")
+        self.substep_unroll = substep_unroll(self.substeps, unroll_substeps)
         self.mj_model = set_constraint_stages(mujoco.MjModel.from_xml_string(xml),
                                               self.constraint_stages)
         self.mjx_model = mjx.put_model(self.mj_model)
@@ -350,6 +356,7 @@ class ReachEnv(Env):
             (state.pipeline_state, self.virtual_velocity(state)),
             None,
             length=self.substeps,
+            unroll=self.substep_unroll,
         )
         # Substeps up to and including the first collision count for the reward.
         before = jnp.concatenate([jnp.zeros((1,), bool), jnp.cumsum(cols)[:-1] > 0])

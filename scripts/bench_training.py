@@ -43,6 +43,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--work", type=Path, default=ROOT / "runs" / "bench_training",
                    help="scratch folder for the run directories and the cache")
     p.add_argument("--out", type=Path, default=ROOT / "results" / "training_speed")
+    p.add_argument("--no-first-iteration", dest="first", action="store_false",
+                   help="time only the whole run, not the repeated one-iteration command")
     args = p.parse_args(argv)
     items = [tuple(r.split(":", 1)) if ":" in r else (r, "rmp_residual") for r in args.runs]
     for env, policy in items:
@@ -56,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     command = " ".join(["python scripts/bench_training.py",
                         *(argv if argv is not None else sys.argv[1:])])
     path = run_training_speed(items, args.seeds, args.iterations, args.preset, args.work,
-                              args.out, command)
+                              args.out, command, args.first)
     print(f"wrote {path}", file=sys.stderr)
     return 0
 

@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from mjxrmp.results.summary import run_record, write_study
+from mjxrmp.results.summary import load_summary, run_record, write_study
 
 ROOT = Path(__file__).resolve().parents[2]
 #: The line :func:`agents.run.training.result_summary` prints about time.
@@ -50,21 +50,25 @@ def timed_train(args: list[str], cache_dir: str, out_dir: str | None = None
 
 
 def measure_training_speed(env: str, policy: str, seeds: list[int], iterations: int,
-                           preset: str, work_dir: Path) -> dict[str, Any]:
+                           preset: str, work_dir: Path, first: bool = True) -> dict[str, Any]:
     """``full``: the whole run (``iterations``, chunks of 25, checkpoints every 50) with a fresh
-    compile cache; ``first_cold`` / ``first_warm``: the same settings for one iteration (chunks
-    of one, a new run directory each), first with a cache that holds no one-iteration program,
-    then repeated with it."""
+    compile cache; with ``first``, ``first_cold`` / ``first_warm``: the same settings for one
+    iteration (chunks of one, a new run directory each), first with a cache that holds no
+    one-iteration program, then repeated with it (else None)."""
     base = ["--env", env, "--policy", policy, "--preset", preset,
             "--seeds", *map(str, seeds)]
     work_dir.mkdir(parents=True, exist_ok=True)
+    first_cold = first_warm = None
     with tempfile.TemporaryDirectory(dir=work_dir) as tmp:
         cache = os.path.join(tmp, "cache")
         full = timed_train([*base, "--iterations", str(iterations), "--log-every", "25",
                             "--checkpoint-every", "50", "--out", f"{tmp}/full"], cache)
         one = [*base, "--iterations", "1", "--log-every", "1", "--checkpoint-every", "1"]
-        first_cold = timed_train([*one, "--out", f"{tmp}/first_cold"], cache, f"{tmp}/first_cold")
-        first_warm = timed_train([*one, "--out", f"{tmp}/first_warm"], cache, f"{tmp}/first_warm")
+        if first:
+            first_cold = timed_train([*one, "--out", f"{tmp}/first_cold"], cache,
+                                     f"{tmp}/first_cold")
+            first_warm = timed_train([*one, "--out", f"{tmp}/first_warm"], cache,
+                                     f"{tmp}/first_warm")
     return {"env": env, "policy": policy, "seeds": list(seeds), "iterations": iterations,
             "preset": preset, "full": full, "first_cold": first_cold, "first_warm": first_warm}
 
@@ -74,13 +78,16 @@ def _row(r: dict[str, Any]) -> list[str]:
     return [r["env"], r["policy"], str(len(r["seeds"])), str(r["iterations"]),
             f"{f['wall_s']:.0f}", f"{f['compile_s']:.1f}", f"{f['train_s']:.0f}",
             f"{f['train_s'] / r['iterations']:.3f}", f"{f['steps_per_s']:.3g}",
-            f"{r['first_cold']['wall_s']:.1f}", f"{r['first_warm']['wall_s']:.1f}",
-            _first(r["first_warm"])]
+            _wall(r["first_cold"]), _wall(r["first_warm"]), _first(r["first_warm"])]
 
 
-def _first(t: dict[str, Any]) -> str:
+def _wall(t: dict[str, Any] | None) -> str:
+    return "—" if t is None else f"{t['wall_s']:.1f}"
+
+
+def _first(t: dict[str, Any] | None) -> str:
     """Launch to the end of the first iteration, where measured (older runs lack it)."""
-    return f"{t['first_chunk_s']:.1f}" if "first_chunk_s" in t else "—"
+    return f"{t['first_chunk_s']:.1f}" if t and "first_chunk_s" in t else "—"
 
 
 COLUMNS = ["environment", "policy", "seeds", "iterations", "end to end (s)", "compile (s)",
@@ -89,38 +96,53 @@ COLUMNS = ["environment", "policy", "seeds", "iterations", "end to end (s)", "co
            "launch to first iteration done, warm cache (s)"]
 
 
-def write_training_speed(results: list[dict[str, Any]], out_dir: Path, command: str) -> Path:
-    """``out_dir/summary.json`` and ``table.csv`` of the ``training_speed`` study."""
-    record = run_record(command)
+def write_training_speed(results: list[dict[str, Any]], out_dir: Path) -> Path:
+    """``out_dir/summary.json`` and ``table.csv`` of the ``training_speed`` study; each result
+    carries its own run record (``run``, ``record``: :func:`run_record`)."""
     headline = []
     for r in results:
         f = r["full"]
-        headline.append([
+        headline.append((r["run"], [
             f"{r['env']} {r['policy']}, {r['preset']} preset, {len(r['seeds'])} seeds × "
             f"{r['iterations']} iterations: end to end from launch (compile, training)",
-            "—", f"{f['wall_s']:.0f} s ({f['compile_s']:.0f} s, {f['train_s']:.0f} s)"])
-        headline.append([
-            f"{r['env']} {r['policy']}: a repeated one-iteration command, launch to exit with "
-            "the compile cache cold / warm (launch to its first iteration done, warm)", "—",
-            f"{r['first_cold']['wall_s']:.1f} s / {r['first_warm']['wall_s']:.1f} s "
-            f"({_first(r['first_warm'])} s)"])
+            "—", f"{f['wall_s']:.0f} s ({f['compile_s']:.0f} s, {f['train_s']:.0f} s)"]))
+        if r["first_cold"] is not None:
+            headline.append((r["run"], [
+                f"{r['env']} {r['policy']}: a repeated one-iteration command, launch to exit "
+                "with the compile cache cold / warm (launch to its first iteration done, warm)",
+                "—", f"{_wall(r['first_cold'])} s / {_wall(r['first_warm'])} s "
+                     f"({_first(r['first_warm'])} s)"]))
     head = {"study": "training_speed", "title": "Training end to end",
             "report": "docs/reports/training_speed.md"}
-    return write_study(out_dir, head, "train_" + record["device"].split()[0].lower(), record,
-                       headline, ("runs", COLUMNS, [_row(r) for r in results]), results)
+    return write_study(out_dir, head, {r["run"]: r["record"] for r in results}, headline,
+                       ("runs", COLUMNS, [_row(r) for r in results]), results)
+
+
+def _kept(out_dir: Path, device: str, items: list[tuple[str, str]]) -> list[dict[str, Any]]:
+    """The results of an existing study in ``out_dir`` measured on ``device`` for pairs not in
+    ``items`` (so a run replaces only its own rows)."""
+    path = out_dir / "summary.json"
+    if not path.exists():
+        return []
+    return [r for r in load_summary(path)["raw"] if "record" in r
+            and r["record"]["device"] == device and (r["env"], r["policy"]) not in items]
 
 
 def run_training_speed(items: list[tuple[str, str]], seeds: list[int], iterations: int,
-                       preset: str, work_dir: Path, out_dir: Path, command: str) -> Path:
+                       preset: str, work_dir: Path, out_dir: Path, command: str,
+                       first: bool = True) -> Path:
     """Measure every ``(env, policy)`` of ``items`` (:func:`measure_training_speed`), printing
-    a line each and writing the study after each (a cut run keeps what it measured)."""
-    results: list[dict[str, Any]] = []
+    a line each and writing the study after each (a cut run keeps what it measured). Rows of
+    other pairs measured earlier on the same device are kept."""
+    record = run_record(command)
+    results = _kept(out_dir, record["device"], items)
     path = out_dir / "summary.json"
     for env, policy in items:
-        results.append(measure_training_speed(env, policy, seeds, iterations, preset,
-                                              work_dir))
-        print(" | ".join(_row(results[-1])), flush=True)
-        path = write_training_speed(results, out_dir, command)
+        r = measure_training_speed(env, policy, seeds, iterations, preset, work_dir, first)
+        slug = "".join(c if c.isalnum() else "_" for c in f"{env}_{policy}_{record['device']}")
+        results.append({**r, "run": slug.lower(), "record": record})
+        print(" | ".join(_row(r)), flush=True)
+        path = write_training_speed(results, out_dir)
     return path
 
 

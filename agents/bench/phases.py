@@ -111,9 +111,10 @@ def phase_programs(env_name: str, batch: int, steps: int, key: jax.Array
     out: dict[str, Callable[[], Any]] = {}
     for variant in PHYSICS_VARIANTS:
         model = physics_model(base.mj_model, variant)
-        # the substeps as the environment runs them (a scan), so loop overheads match
+        # the substeps looped as the environment loops them, so loop overheads match
         sub = jax.vmap(lambda d, m=model: jax.lax.scan(
-            lambda d, _: (mjx.step(m, d), None), d, None, length=base.substeps)[0])
+            lambda d, _: (mjx.step(m, d), None), d, None, length=base.substeps,
+            unroll=base.substep_unroll)[0])
         out[f"physics_{variant}"] = functools.partial(_scan(sub, steps),
                                                       _data_like(model, data, batch))
     raw = _scan(lambda s: jax.vmap(base.step)(s, zero), steps)

@@ -141,7 +141,8 @@ def write_profile(results: dict[str, dict[str, Any]], batch: int, out_dir: Path,
     head = {"study": "performance", "title": "Control-step profile",
             "report": "docs/reports/performance.md"}
     run = "profile_" + record["device"].split()[0].lower().replace("(", "")
-    return write_study(out_dir, head, run, record, headline, ("phases", columns, rows), results)
+    return write_study(out_dir, head, {run: record}, [(run, cells) for cells in headline],
+                       ("phases", columns, rows), results)
 
 
 def run_profile(env_names: list[str], batch: int, steps: int, repeats: int, episodes: int,

@@ -132,17 +132,18 @@ def write_summary(path: str | os.PathLike, data: dict) -> Path:
     return write_text(path, json.dumps(data, indent=1, ensure_ascii=False) + "\n")
 
 
-def write_study(out_dir: str | os.PathLike, head: dict[str, str], run: str, record: dict,
-                headline: list[list[str]], table: tuple[str, list[str], list[list[Any]]],
-                raw: Any) -> Path:
-    """A study of one run written as ``out_dir/summary.json`` and ``table.csv``: ``head`` holds
-    ``study``, ``title`` and ``report``; ``headline`` its rows (quantity, thesis or peer figure,
+def write_study(out_dir: str | os.PathLike, head: dict[str, str], runs: dict[str, dict],
+                headline: list[tuple[str, list[str]]],
+                table: tuple[str, list[str], list[list[Any]]], raw: Any) -> Path:
+    """A study written as ``out_dir/summary.json`` and ``table.csv``: ``head`` holds ``study``,
+    ``title`` and ``report``; ``runs`` the record of each run (:func:`run_record`) by name;
+    ``headline`` its rows as ``(run, cells)`` with cells (quantity, thesis or peer figure,
     ours); ``table`` is ``(name, columns, rows)``, also written as the CSV; ``raw`` the
     measurements as measured."""
     name, columns, rows = table
-    summary = {**head, "runs": {run: record},
+    summary = {**head, "runs": runs,
                "headline": {"columns": ["quantity", "thesis or peer figure", "ours"],
-                            "rows": [{"run": run, "cells": cells} for cells in headline]},
+                            "rows": [{"run": run, "cells": cells} for run, cells in headline]},
                "tables": {name: {"columns": columns, "rows": rows}},
                "deviations": [], "raw": raw}
     csv = "\n".join(",".join(str(c) for c in row) for row in [columns, *rows]) + "\n"

@@ -1,13 +1,20 @@
 """Training timed end to end (agents.bench.end_to_end): a failing command is reported with its
-exit status, the study validates and renders, and (slow) a real tiny measurement runs
+exit status, the study validates and renders, a new measurement keeps the other rows of its
+device, and (slow) a real tiny measurement runs
 scripts/train.py three times."""
 
 from __future__ import annotations
 
 import pytest
 
-from agents.bench.end_to_end import COLUMNS, run_training_speed, timed_train, write_training_speed
-from mjxrmp.results.summary import load_summary
+from agents.bench.end_to_end import (
+    COLUMNS,
+    _kept,
+    run_training_speed,
+    timed_train,
+    write_training_speed,
+)
+from mjxrmp.results.summary import load_summary, run_record
 
 
 def test_a_failing_training_command_is_reported(tmp_path):
@@ -17,18 +24,37 @@ def test_a_failing_training_command_is_reported(tmp_path):
         timed_train(["--env", "nowhere"], str(tmp_path / "cache"))
 
 
-def test_training_speed_study_validates(tmp_path):
-    """The study of one measurement: two headline rows, one table row per run, the CSV."""
+def _result(env: str, device: str, first: bool = True) -> dict:
     times = {"wall_s": 40.0, "compile_s": 20.0, "train_s": 15.0, "steps_per_s": 1e4}
-    result = {"env": "three_link/env3", "policy": "nn", "seeds": [0, 1], "iterations": 5,
-              "preset": "cpu", "full": times, "first_cold": {**times, "wall_s": 30.0},
-              "first_warm": {**times, "wall_s": 9.0, "first_chunk_s": 6.5}}
-    summary = load_summary(write_training_speed([result], tmp_path, "python x.py"))
+    record = run_record("python x.py", device=device)
+    return {"env": env, "policy": "nn", "seeds": [0, 1], "iterations": 5, "preset": "cpu",
+            "full": times, "first_cold": {**times, "wall_s": 30.0} if first else None,
+            "first_warm": {**times, "wall_s": 9.0, "first_chunk_s": 6.5} if first else None,
+            "run": f"{env}_{device}", "record": record}
+
+
+def test_training_speed_study_validates(tmp_path):
+    """One measurement with the one-iteration command and one without: three headline rows,
+    one table row per run (dashes where not measured), one run record each, the CSV."""
+    summary = load_summary(write_training_speed(
+        [_result("three_link/env3", "GPU"), _result("franka", "GPU", first=False)], tmp_path))
     assert summary["study"] == "training_speed"
     assert [r["cells"][2] for r in summary["headline"]["rows"]] == [
-        "40 s (20 s, 15 s)", "30.0 s / 9.0 s (6.5 s)"]
-    assert summary["tables"]["runs"]["rows"][0][7] == "3.000"  # 15 s / 5 iterations
+        "40 s (20 s, 15 s)", "30.0 s / 9.0 s (6.5 s)", "40 s (20 s, 15 s)"]
+    rows = summary["tables"]["runs"]["rows"]
+    assert rows[0][7] == "3.000"  # 15 s / 5 iterations
+    assert rows[1][9:] == ["—", "—", "—"]
+    assert sorted(summary["runs"]) == ["franka_GPU", "three_link/env3_GPU"]
     assert (tmp_path / "table.csv").read_text().splitlines()[0] == ",".join(COLUMNS)
+
+
+def test_a_new_measurement_keeps_other_pairs_of_the_same_device(tmp_path):
+    """_kept returns the earlier results of the same device for pairs not measured again."""
+    write_training_speed([_result("three_link/env3", "GPU"), _result("franka", "GPU"),
+                          _result("point2d", "CPU")], tmp_path)
+    kept = _kept(tmp_path, "GPU", [("franka", "nn")])
+    assert [r["env"] for r in kept] == ["three_link/env3"]
+    assert _kept(tmp_path / "none", "GPU", []) == []
 
 
 @pytest.mark.slow  # three train.py processes with compiles; the pieces are tested above

@@ -1,7 +1,8 @@
 """Dropping MuJoCo's constraint pipeline (envs.physics, docs/design.md §5.8): the environments
 run without it by default, ``constraint_stages=True`` restores the model as generated, the
 trajectories of both agree (3-link exactly, Franka to float rounding), and the joint-limit
-check of agents.bench.phases takes any policy, trained runs included."""
+check of agents.bench.phases takes any policy, trained runs included. Unrolling the physics
+substeps (docs/design.md §5.9) changes no trajectory."""
 
 from __future__ import annotations
 
@@ -59,6 +60,22 @@ def test_trajectories_with_and_without_the_constraint_pipeline_agree(name, tol):
     on = _rollout(envs.make(name, constraint_stages=True), 40, 4)
     assert np.isfinite(off).all()
     np.testing.assert_allclose(off, on, rtol=0, atol=tol)
+
+
+@pytest.mark.parametrize("name", ["three_link/env3", "franka"])
+def test_unrolled_substeps_give_the_same_trajectories(name):
+    """The physics substeps written out (``unroll_substeps=True``, the GPU default,
+    docs/design.md §5.9) and looped give the same joint trajectories (40 random-action control
+    steps × 4 environments, to float rounding); the default on this CPU is the loop."""
+    looped = envs.make(name)
+    assert looped.substep_unroll == (looped.substeps if jax.default_backend() == "gpu" else 1)
+    written = envs.make(name, unroll_substeps=True)
+    assert written.substep_unroll == written.substeps
+    np.testing.assert_allclose(_rollout(written, 40, 4),
+                               _rollout(envs.make(name, unroll_substeps=False), 40, 4),
+                               rtol=0, atol=1e-6)
+    with pytest.raises(ValueError, match="unroll_substeps"):
+        envs.make(name, unroll_substeps=1)
 
 
 def test_limit_check_takes_any_policy():
