@@ -15,7 +15,9 @@ re-samples goal and obstacles).
 * :mod:`envs.physics` — which MuJoCo pipeline stages the environments run (constraints off);
 * :mod:`envs.wrappers` — the re-sampling auto-reset, :func:`wrap`, :class:`RMPInEnv`;
 * :mod:`envs.evaluate` — frozen-episode rollouts and summaries of a policy;
-* :mod:`envs.render` — animated GIFs of a rollout (needs matplotlib, ``pip install -e ".[plots]"``).
+* :mod:`envs.render` — animated GIFs of a rollout (needs matplotlib, ``pip install -e ".[plots]"``);
+* :mod:`envs.gymnasium` — Gymnasium 1.x ``Env`` and ``VectorEnv`` adapters (needs gymnasium,
+  ``pip install -e ".[gymnasium]"``; import it as ``envs.gymnasium``).
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ __all__ = [
     "base",
     "evaluate",
     "franka",
+    "gymnasium",
     "make",
     "physics",
     "point2d",

@@ -18,7 +18,7 @@ first scene of each batch slot.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -32,7 +32,10 @@ from mjxrmp import policies
 EPISODE_KEYS = ("steps", "truncation", "episode_done", "episode_metrics")
 
 
-def _where_done(done: jax.Array, new, old):
+def where_done(done: jax.Array, new: Any, old: Any) -> Any:
+    """``new`` where ``done > 0`` and ``old`` elsewhere, leaf by leaf, for pytrees batched over
+    environments (``done`` of shape ``(N,)`` broadcast over each leaf's trailing axes)."""
+
     def sel(x, y):
         d = jnp.reshape(done, done.shape + (1,) * (x.ndim - done.ndim)) > 0
         return jnp.where(d, x, y)
@@ -84,10 +87,10 @@ class AutoResetWrapper(Wrapper):
         info = dict(state.info)
         for k, v in fresh.info.items():
             if k not in EPISODE_KEYS:
-                info[k] = _where_done(done, v, state.info[k])
+                info[k] = where_done(done, v, state.info[k])
         return state.replace(
-            pipeline_state=_where_done(done, fresh.pipeline_state, state.pipeline_state),
-            obs=_where_done(done, fresh.obs, state.obs),
+            pipeline_state=where_done(done, fresh.pipeline_state, state.pipeline_state),
+            obs=where_done(done, fresh.obs, state.obs),
             info=info,
         )
 
@@ -120,7 +123,7 @@ class AutoResetWrapper(Wrapper):
         depth = jax.tree.leaves(pool.starts)[0].shape[0]
         fresh = jax.tree.map(lambda x: x[depth - 1], pool.starts)
         for j in reversed(range(depth - 1)):
-            fresh = _where_done((pool.taken == j).astype(jnp.float32),
+            fresh = where_done((pool.taken == j).astype(jnp.float32),
                                 jax.tree.map(lambda x, j=j: x[j], pool.starts), fresh)
         taken = pool.taken + (state.done > 0).astype(jnp.int32)
         overflow = pool.overflow | jnp.any(taken > depth)
@@ -190,4 +193,4 @@ class RMPInEnv(Wrapper):
         return self.env.step(state, self.joint_acceleration(state, action))
 
 
-__all__ = ["EPISODE_KEYS", "AutoResetWrapper", "RMPInEnv", "ResetPool", "wrap"]
+__all__ = ["EPISODE_KEYS", "AutoResetWrapper", "RMPInEnv", "ResetPool", "where_done", "wrap"]

@@ -5,14 +5,17 @@ in the MJX environment.
 
     python scripts/train_offline.py --learner MAHALO --env three_link/env3 --scenario ILfO
     python scripts/train_offline.py --learner IQL --dataset data/env3_mixed.npz --steps 100000
+    python scripts/train_offline.py --learner BC --dataset minari:mjxrmp/env3-mixed-v0  # Minari
     python scripts/train_offline.py ... --resume          # continue from the last checkpoint
     python scripts/train_offline.py --learner Oracle --betas 0.25 1 4 16   # seeds × β, one program
 
 Data: ``--dataset`` (a file written by ``scripts/collect.py``; its environment is read from the
-file) or, without it, a ``--recipe`` dataset of ``--scale`` episodes per source collected on
-``--env`` (default ``mixed``). PLfO scenarios (``--scenario ILfO|IL|RLfO|RL-expert|RL-sample``)
-also need expert data: ``--expert`` or an ``expert`` recipe collected the same way. Without a
-scenario the learner reads the dataset's own rewards (``Oracle``/``PSPI``/``IQL``/``CQL``/``BC``).
+file; or ``minari:ID_OR_FOLDER``, a local Minari dataset with Box spaces, read by
+:func:`offline.data.minari.import_minari`) or, without it, a ``--recipe`` dataset of
+``--scale`` episodes per source collected on ``--env`` (default ``mixed``). PLfO scenarios
+(``--scenario ILfO|IL|RLfO|RL-expert|RL-sample``) also need expert data: ``--expert`` or an
+``expert`` recipe collected the same way. Without a scenario the learner reads the dataset's own
+rewards (``Oracle``/``PSPI``/``IQL``/``CQL``/``BC``).
 Learners and what each reads: :mod:`offline.learners.registry`; the run:
 :mod:`offline.experiment.single`.
 

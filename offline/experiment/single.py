@@ -42,12 +42,17 @@ from offline.learners.registry import BETA_LEARNERS, LEARNERS, Budget
 #: The environment trained on when neither ``--env`` nor a dataset names one.
 DEFAULT_ENV = "three_link/env3"
 
+#: Prefix of a ``--dataset`` / ``--expert`` value naming a Minari dataset id or folder.
+MINARI_PREFIX = "minari:"
+
 OPTIONS = (
     Option(("--learner",), dict(required=True, choices=LEARNERS)),
     Option(("--scenario",), dict(default=None, choices=scenarios.SCENARIOS)),
-    Option(("--dataset",), dict(type=Path, default=None,
-                                help="dataset file (scripts/collect.py)")),
-    Option(("--expert",), dict(type=Path, default=None, help="expert dataset file (scenarios)")),
+    Option(("--dataset",), dict(type=Path, default=None, help=(
+        f"dataset file (scripts/collect.py) or {MINARI_PREFIX}ID_OR_FOLDER (a local Minari "
+        "dataset, offline.data.minari)"))),
+    Option(("--expert",), dict(type=Path, default=None,
+                               help="expert dataset file or Minari dataset (scenarios)")),
     Option(("--env",), dict(default=None, help=(
         "environment to train on; default: the --dataset's recorded environment, else "
         f"{DEFAULT_ENV} (collected on when no --dataset is given)"))),
@@ -79,8 +84,14 @@ def check_args(args: Any) -> Any:
     for name in ("scale", "steps", "batch", "chunk", "eval_episodes"):
         if getattr(args, name) < 1:
             raise ValueError(f"--{name.replace('_', '-')} must be a positive integer")
-    for path in (args.dataset, args.expert):
-        if path is not None and not path.exists():
+    for flag, path in (("--dataset", args.dataset), ("--expert", args.expert)):
+        if path is not None and str(path).startswith(MINARI_PREFIX):
+            from offline.data import minari as ominari  # lazy: the optional `minari` extra
+            try:
+                ominari.locate(str(path)[len(MINARI_PREFIX):])
+            except FileNotFoundError as e:
+                raise ValueError(f"{flag}: {e}") from None
+        elif path is not None and not path.exists():
             raise ValueError(f"dataset file {path} does not exist")
     if args.expert is not None and args.scenario is None:
         raise ValueError("--expert is only used with --scenario")
@@ -93,12 +104,23 @@ def check_args(args: Any) -> Any:
     return args
 
 
+def read_dataset(path: Path) -> odata.Dataset:
+    """The dataset of a ``--dataset`` / ``--expert`` value: a dataset file
+    (:func:`offline.data.dataset.load`) or ``minari:ID_OR_FOLDER``, a local Minari dataset
+    (:func:`offline.data.minari.import_minari`)."""
+    spec = str(path)
+    if spec.startswith(MINARI_PREFIX):
+        from offline.data import minari as ominari  # lazy: the optional `minari` extra
+        return ominari.import_minari(spec[len(MINARI_PREFIX):])
+    return odata.load(path)
+
+
 def load_data(args: Any) -> tuple[str, odata.Dataset, scenarios.RewardData | None]:
     """``(env_name, dynamics, reward_data)``: the dataset (or scenario pair) of the run."""
 
     def get(path: Path | None, recipe: str) -> odata.Dataset:
         if path is not None:
-            return odata.load(path)
+            return read_dataset(path)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # the documented no-PPO fallback
             return collect.collect_recipe(args.env or DEFAULT_ENV, recipe, args.scale,
@@ -217,4 +239,5 @@ def summary_lines(args: Any, result: dict[str, Any]) -> list[str]:
     return lines
 
 
-__all__ = ["OPTIONS", "check_args", "load_data", "summary_lines", "train"]
+__all__ = ["MINARI_PREFIX", "OPTIONS", "check_args", "load_data", "read_dataset", "summary_lines",
+           "train"]
