@@ -7,12 +7,16 @@ Usage::
         [--platforms cpu cuda] [--matmul-precision highest] [--force]
     python scripts/export.py --env three_link/env3 --policy rmp_residual \\
         --out exported/untrained.jaxexport [--seed 0]
+    python scripts/export.py --skill results/lfd_lasa/skills/Angle --out exported/angle.jaxexport
 
 The first form exports a trained policy: the newest (or ``--step``) checkpoint of a run
 directory written by ``scripts/train.py``, one training seed, with its observation statistics
 baked in (:func:`agents.run.loading.deterministic_policy`). The second exports a freshly initialised
 policy of that kind (``params = module.init(PRNGKey(seed), zeros(obs_size))``). The export
-itself is :func:`agents.run.export.export_run`. Load the result with ``scripts/load_policy.py``.
+itself is :func:`agents.run.export.export_run`. The third exports a saved LfD skill's velocity
+``x (b, dim) → ẋ (b, dim)`` (``scripts/lfd_lasa.py --save-skills``; :func:`agents.lfd.skills.
+export_skill`, full float32 matrix products unless ``--matmul-precision`` says otherwise). Load
+the result with ``scripts/load_policy.py``.
 
 An existing ``--out`` (or its ``.json`` manifest) is not overwritten without ``--force``; a
 corrupt checkpoint (the newest intact one is used unless ``--step`` names it) and NaN/inf
@@ -31,6 +35,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from mjxrmp import _xla  # sets the XLA:CPU flag before JAX initialises
 
 # isort: split
+from agents.lfd.skills import export_skill
 from agents.ppo import KINDS
 from agents.run.export import EXPORTABLE_ENVS, MATMUL_PRECISIONS, export_run
 
@@ -46,6 +51,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="checkpoint iteration (default: the newest)")
     parser.add_argument("--train-seed-index", type=int, default=0,
                         help="which of the run's training seeds to export")
+    parser.add_argument("--skill", default=None, metavar="SKILL_DIR",
+                        help="export a saved LfD skill (agents.lfd.skills) from this folder")
     parser.add_argument("--env", default=None, choices=EXPORTABLE_ENVS,
                         help="environment name (an untrained policy; not with --checkpoint)")
     parser.add_argument("--policy", default=None, choices=list(KINDS), help="policy kind")
@@ -58,15 +65,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--force", action="store_true",
                         help="overwrite an existing --out file and its .json manifest")
     args = parser.parse_args(argv)
-    if args.checkpoint is not None and (args.env is not None or args.policy is not None):
-        parser.error("--env/--policy come from the run directory with --checkpoint")
-    if args.checkpoint is None and (args.env is None or args.policy is None):
-        parser.error("give --checkpoint RUN_DIR, or --env and --policy")
+    sources = [args.checkpoint, args.skill, args.env or args.policy]
+    if sum(s is not None for s in sources) > 1:
+        parser.error("give one of --checkpoint RUN_DIR, --skill SKILL_DIR or --env/--policy")
+    if args.checkpoint is None and args.skill is None and (args.env is None
+                                                           or args.policy is None):
+        parser.error("give --checkpoint RUN_DIR, --skill SKILL_DIR, or --env and --policy")
 
     try:
-        manifest = export_run(args.out, args.checkpoint, args.step, args.train_seed_index,
-                              args.env, args.policy, args.seed, platforms=args.platforms,
-                              matmul_precision=args.matmul_precision, force=args.force)
+        if args.skill is not None:
+            manifest = export_skill(args.skill, args.out, platforms=args.platforms,
+                                    matmul_precision=args.matmul_precision or "highest",
+                                    force=args.force)
+        else:
+            manifest = export_run(args.out, args.checkpoint, args.step, args.train_seed_index,
+                                  args.env, args.policy, args.seed, platforms=args.platforms,
+                                  matmul_precision=args.matmul_precision, force=args.force)
     except (FileNotFoundError, FileExistsError, ValueError, IndexError) as e:
         parser.error(str(e))
     print(f"wrote {args.out} ({manifest['size_bytes']} bytes, sha256 {manifest['sha256'][:12]}…)"

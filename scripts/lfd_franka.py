@@ -95,6 +95,9 @@ def parse_args(argv: list[str] | None = None) -> tuple[argparse.Namespace, Frank
                         "(TF32 on Ampere/Hopper GPUs)")
     p.add_argument("--out", default="results/lfd_franka/seed_0")
     p.add_argument("--figures", default="results/lfd_franka")
+    p.add_argument("--save-skills", default=None, metavar="DIR",
+                   help="also save every kept fold model as a reloadable skill under "
+                        "DIR/<task>/<strategy>/fold_<f>/ (agents.lfd.skills)")
     p.add_argument("--quick", action="store_true",
                    help="tests: tiny preset, 2 folds, 1 start, drawer task, joint strategy, "
                         "dt 0.5 s")
@@ -130,7 +133,7 @@ def main(argv: list[str] | None = None) -> dict:
 
     with jax.default_matmul_precision(args.matmul_precision):
         try:
-            result = compare_strategies(config, log)
+            result = compare_strategies(config, log, args.save_skills)
         except DivergenceError as err:
             print(f"error: {err}; nothing written to {args.out}", file=sys.stderr)
             sys.exit(EXIT_DIVERGED)

@@ -24,6 +24,9 @@ Writes to ``--out`` (one folder: ``tar czf lasa.tgz -C DIR .``):
   with one row per shape (also printed as a table; :mod:`agents.lfd.lasa_summary`);
 * ``<shape>_field.png`` and ``<shape>_potential.png`` (as Figs 4.4 and 4.7).
 
+``--save-skills DIR`` also saves each trained field as a reloadable, exportable skill
+``DIR/<shape>/`` (:func:`agents.lfd.skills.save_lasa_skills`; ``scripts/export.py --skill``).
+
 A training loss or parameter that turns non-finite stops the script with exit status 3 and one
 line naming the iteration and the shape; nothing is written.
 """
@@ -44,6 +47,7 @@ import numpy as np
 from agents.lfd.config import LfdConfig
 from agents.lfd.figures import plot_lasa
 from agents.lfd.lasa_eval import canonical_shapes, evaluate_shapes, time_epochs
+from agents.lfd.skills import save_lasa_skills
 from mjxrmp import _xla  # sets the XLA:CPU flag before JAX initialises
 from mjxrmp.data.lasa import LASA_SHAPES
 from mjxrmp.divergence import EXIT_DIVERGED, DivergenceError
@@ -87,6 +91,9 @@ def parse_args(argv: list[str] | None) -> tuple[argparse.ArgumentParser, argpars
     p.add_argument("--goal-radius", type=float, default=0.05,
                    help="convergence radius of the check (normalised units)")
     p.add_argument("--no-figures", action="store_true")
+    p.add_argument("--save-skills", default=None, metavar="DIR",
+                   help="also save every trained shape as a reloadable skill DIR/<shape>/ "
+                        "(agents.lfd.skills; default: off)")
     p.add_argument("--time-epochs", type=int, default=None, metavar="N",
                    help="only time N full-batch training epochs on Sshape (after compilation) "
                         "and print their median")
@@ -137,6 +144,8 @@ def main(argv: list[str] | None = None) -> dict:
         json.dump(run.record, f, indent=1)
     if not args.no_figures:
         plot_lasa(run, args.out)
+    if args.save_skills is not None:
+        save_lasa_skills(args.save_skills, names, config, run.result.variables, args.seed)
     print(f"wrote {args.out}/ ({run.record['train_seconds']:.0f} s training)")
     return run.record
 

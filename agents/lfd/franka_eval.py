@@ -67,6 +67,7 @@ than the CPU preset); ``reference`` adds the LASA reference code's gradient clip
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -74,6 +75,7 @@ import numpy as np
 
 from agents.lfd.franka_folds import evaluate_strategy
 from agents.lfd.franka_scenario import FrankaEvalConfig, make_scenario
+from agents.lfd.skills import save_franka_skills
 from mjxrmp.data import franka_demos
 
 __all__ = ["LABELS", "Comparison", "compare_strategies", "table_lines", "table_row"]
@@ -126,10 +128,24 @@ def table_lines(rows: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
-def compare_strategies(config: FrankaEvalConfig, log: Callable[[str], None] = print
-                       ) -> Comparison:
+def _saver(out: str | os.PathLike | None, config: FrankaEvalConfig, task: str, strategy: str,
+           folds: list[int], stacked: franka_demos.StackedDemos) -> Callable | None:
+    """The ``on_kept`` of :func:`evaluate_strategy` that saves the kept models as skills, or
+    None without ``out``."""
+    if out is None:
+        return None
+    idx = np.asarray(folds)
+    goals, q_goal = np.asarray(stacked.goals)[idx], np.asarray(stacked.q_goal)[idx]
+    return lambda result, q_posture: save_franka_skills(out, config, task, strategy, folds,
+                                                        result, goals, q_goal, q_posture)
+
+
+def compare_strategies(config: FrankaEvalConfig, log: Callable[[str], None] = print,
+                       save_skills: str | os.PathLike | None = None) -> Comparison:
     """Run the comparison of the module docstring for every task and strategy of ``config``,
-    with progress lines through ``log``."""
+    with progress lines through ``log``; with ``save_skills`` every kept fold model is saved as
+    a skill under ``save_skills/<task>/<strategy>/fold_<f>/``
+    (:func:`agents.lfd.skills.save_franka_skills`)."""
     out = Comparison({}, [], {}, {}, {})
     for ti, task in enumerate(config.tasks):
         demos = franka_demos.load_task(task, config.root, dt=config.dt)
@@ -143,7 +159,8 @@ def compare_strategies(config: FrankaEvalConfig, log: Callable[[str], None] = pr
         for s in config.strategies:
             log(f"  {s}")
             m, out.reproductions[task][s] = evaluate_strategy(
-                config, config.strategy_config(s), stacked, demos, scenario, log)
+                config, config.strategy_config(s), stacked, demos, scenario, log,
+                _saver(save_skills, config, task, s, scenario.folds, stacked))
             out.metrics[task][s] = m
             out.rows.append(table_row(task, s, m))
     return out

@@ -213,11 +213,14 @@ def _summary_line(out: dict) -> str:
 
 def evaluate_strategy(config: FrankaEvalConfig, cfg: StrategyConfig,
                       stacked: franka_demos.StackedDemos, demos: list[franka_demos.FrankaDemo],
-                      scenario: Scenario, log: Callable[[str], None] = print
+                      scenario: Scenario, log: Callable[[str], None] = print,
+                      on_kept: Callable[[StrategyResult, np.ndarray], Any] | None = None
                       ) -> tuple[dict, list[np.ndarray]]:
     """Train every fold of ``scenario`` (:func:`train_restarts`, the restart kept by
     :func:`agents.lfd.franka_scenario.kept_restarts`), roll out and score; returns the
-    strategy's record (``metrics.json``) and the held-out reproductions per fold."""
+    strategy's record (``metrics.json``) and the held-out reproductions per fold.
+    ``on_kept(result, q_posture)`` receives the kept models stacked over the folds and their
+    execution postures (e.g. to save them: :func:`agents.lfd.skills.save_franka_skills`)."""
     folds, K = scenario.folds, config.restarts
     F, N = len(folds), len(demos)
     result, nominal, train_s = train_restarts(config, cfg, stacked, folds)
@@ -230,6 +233,8 @@ def evaluate_strategy(config: FrankaEvalConfig, cfg: StrategyConfig,
     choice = kept_restarts(restart_errors, config.success_radius)
     pick = lambda a: a.reshape(F, K, *a.shape[1:])[np.arange(F), choice]  # noqa: E731
     result = jax.tree.map(pick, result)
+    if on_kept is not None:
+        on_kept(result, q_posture)
     log(f"    trained {F} folds × {K} restarts in {train_s:.1f} s; final losses flow "
         f"{np.asarray(result.flow_losses[:, -1]).mean():.4g}"
         + (f", metric {np.asarray(result.metric_losses[:, -1]).mean():.4g}"

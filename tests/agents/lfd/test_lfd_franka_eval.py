@@ -30,6 +30,7 @@ from agents.lfd.franka_scenario import (
     perturbed_starts,
 )
 from agents.lfd.seeds import load_runs, summarise
+from agents.lfd.skills import load_skill
 from mjxrmp.data import franka_demos as fd
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -46,8 +47,14 @@ def _script(name: str, *args: str) -> subprocess.CompletedProcess:
 
 @needs_data
 def test_script_quick_runs_end_to_end(tmp_path):
-    _script("lfd_franka.py", "--quick", "--out", str(tmp_path), "--figures", str(tmp_path))
+    _script("lfd_franka.py", "--quick", "--out", str(tmp_path), "--figures", str(tmp_path),
+            "--save-skills", str(tmp_path / "skills"))
     m = json.loads((tmp_path / "metrics.json").read_text())
+    saved = sorted((tmp_path / "skills" / "drawer_closing" / "joint").iterdir())
+    folds = m["tasks"]["drawer_closing"]["joint"]["folds"]
+    assert [p.name for p in saved] == sorted(f"fold_{f['held_out']}" for f in folds)
+    skill = load_skill(saved[0])
+    assert skill.kind == "franka" and skill.description["strategy"] == "joint"
     joint = m["tasks"]["drawer_closing"]["joint"]
     assert np.isfinite(joint["mean_position_error"]) and 0 <= joint["success_rate"] <= 1
     assert len(joint["folds"][0]["mean_position_error_per_point"]) == 3
