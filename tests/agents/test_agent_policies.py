@@ -227,28 +227,47 @@ def test_rmp_in_env_squashes_and_plumbs_the_residual_action(three_link):
     np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-4)
 
 
-def test_franka_policy_classes():
-    """Every kind on the Franka (45-d observation, 7 joints; thesis §6.3 sizes): shapes, RMP²
-    inputs decoded exactly, zero residuals give the presets, rmp_residual_env acts 3×3 + 3."""
+@pytest.fixture(scope="module")
+def franka():
+    """The Franka environment and 2 reset states."""
     env = envs.make("franka")
-    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(1), 2))
+    return env, jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(1), 2))
+
+
+def test_franka_decode_and_sizes(franka):
+    """The Franka (45-d observation, 7 joints; thesis §6.3 sizes): RMP² inputs decoded exactly,
+    the thesis network sizes, rmp_residual_env acts 3×3 + 3."""
+    env, states = franka
     q, qd, goal, obstacles = jax.vmap(env.policy_inputs)(states)
     dq, dqd, dgoal, dobs = decode_observation(env, states.obs)
     np.testing.assert_allclose(dqd, qd, atol=1e-6)
     np.testing.assert_allclose(dq, q, atol=1e-5)
     np.testing.assert_allclose(dgoal, goal, atol=1e-5)
     np.testing.assert_allclose(dobs.radius, obstacles.radius, atol=1e-6)
+    for kind, hidden in (("nn", (512, 256)), ("nn_residual", (512, 256)),
+                         ("rmp_residual", (256, 128))):
+        assert tuple(make_policy(kind, env).hidden_sizes) == hidden, kind
+    wrapped, pol = make_env_and_policy("franka", "rmp_residual_env")
+    assert wrapped.action_size == 12 and pol.action_size == 12
+    assert wrapped.observation_size == 45 + 9  # goal, end-effector position and velocity
+
+
+# The same checks on the 3-link: test_log_std_init_and_shapes, test_hand_designed_equals_preset,
+# test_nn_residual_is_base_plus_small_mlp, test_rmp_residual_zero_residual_is_preset (here the
+# second robot: four Franka policies compiled, 15 CPU s).
+@pytest.mark.slow  # second robot of the 3-link checks named above
+def test_franka_policy_classes(franka):
+    """Every kind on the Franka: shapes, finite means, zero residuals give the presets."""
+    env, states = franka
+    q, qd, goal, obstacles = jax.vmap(env.policy_inputs)(states)
 
     def preset(variant):
         cfg = rmp_policies.default_config("franka", variant)
         return jax.jit(jax.vmap(lambda *a: rmp_policies.acceleration(cfg, *a)))(
             q, qd, goal, obstacles)
 
-    for kind, hidden in (("nn", (512, 256)), ("nn_residual", (512, 256)),
-                         ("rmp_residual", (256, 128)), ("hand_designed", None)):
+    for kind in ("nn", "nn_residual", "rmp_residual", "hand_designed"):
         pol = make_policy(kind, env)
-        if hidden is not None:
-            assert tuple(pol.hidden_sizes) == hidden, kind
         params = jax.jit(pol.init)(jax.random.PRNGKey(2), states.obs[0])
         apply = jax.jit(pol.apply)
         mean, log_std = apply(params, states.obs)
@@ -261,6 +280,3 @@ def test_franka_policy_classes():
             variant = "residual_base" if kind == "nn_residual" else "residual_rmp"
             np.testing.assert_allclose(apply(_zero_subtree(params, sub), states.obs)[0],
                                        preset(variant), rtol=1e-4, atol=1e-4)
-    wrapped, pol = make_env_and_policy("franka", "rmp_residual_env")
-    assert wrapped.action_size == 12 and pol.action_size == 12
-    assert wrapped.observation_size == 45 + 9  # goal, end-effector position and velocity

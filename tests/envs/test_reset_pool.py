@@ -41,7 +41,7 @@ def _pooled_and_plain(env, episode_length: int, steps: int, depths: tuple[int, .
     """``steps`` steps with a constant action: the per-step resets' final state and done flags,
     and for each pool depth the same from a pool (final state, done flags, pool)."""
     w = wrap(env, episode_length)
-    state = w.reset(jax.random.split(jax.random.PRNGKey(3), batch))
+    state = jax.jit(w.reset)(jax.random.split(jax.random.PRNGKey(3), batch))  # not op by op
     action = 0.3 * jnp.ones((batch, env.action_size), jnp.float32)
 
     def plain_body(s, _):
@@ -93,7 +93,7 @@ def test_pool_restarts_like_a_reset_every_step(robot, three_link):
 
 def test_pool_depth_is_validated(three_link):
     w = wrap(three_link, 5)
-    state = w.reset(jax.random.split(jax.random.PRNGKey(0), 2))
+    state = jax.jit(w.reset)(jax.random.split(jax.random.PRNGKey(0), 2))
     with pytest.raises(ValueError, match="depth must be a positive integer"):
         w.reset_pool(state, 0)
 

@@ -150,10 +150,13 @@ def test_debug_mode_names_a_leaf_with_a_negative_definite_metric(three_link):
         return out
 
     args = (q, qd, goal, obstacles, cfg)
-    plain = rmp2.acceleration(policies.task_map, reversed_target, *args)
+    # the plain (non-debug) calls compiled, not run op by op; debug mode runs eagerly
+    plain = jax.jit(rmp2.acceleration, static_argnums=(0, 1))(policies.task_map,
+                                                               reversed_target, *args)
     assert np.all(np.isfinite(plain))  # without debug mode: silently wrong
     with pytest.raises(Exception, match=r"leaf_fn output\['target'\]: metric M is not positive "
                                         r"semi-definite; member 0 has minimum eigenvalue -"):
         rmp2.acceleration(policies.task_map, reversed_target, *args, debug=True)
     np.testing.assert_allclose(policies.acceleration(cfg, q, qd, goal, obstacles, debug=True),
-                               policies.acceleration(cfg, q, qd, goal, obstacles), rtol=1e-5)
+                               jax.jit(policies.acceleration)(cfg, q, qd, goal, obstacles),
+                               rtol=1e-5)

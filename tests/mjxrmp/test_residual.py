@@ -34,6 +34,11 @@ def _case(robot: str, seed: int):
     return q, qd, goal, obstacles, A_r, a_r
 
 
+def _reset_obs(env, seed: int, n: int) -> jax.Array:
+    """Observations of ``n`` fresh episodes (the reset compiled once, not run op by op)."""
+    return jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(seed), n)).obs
+
+
 @jax.jit
 def _both(cfg, q, qd, goal, obstacles, A_r, a_r):
     ref = policies.residual_rmp_acceleration(cfg, q, qd, goal, obstacles, A_r, a_r)
@@ -69,19 +74,20 @@ def test_policy_with_precomputed_parts_matches_and_differentiates_alike(env_name
     with and without precomputed parts, for a batch of real observations."""
     env = envs.make(env_name)
     module = make_policy("rmp_residual", env)
-    obs = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 6)).obs
-    params = module.init(jax.random.PRNGKey(1), obs)
+    obs = _reset_obs(env, 0, 6)
+    params = jax.jit(module.init)(jax.random.PRNGKey(1), obs)
     params = jax.tree.map(lambda p: p + 0.1 * jnp.ones_like(p), params)  # leave the init
-    feats = module.precompute(obs)
+    feats = jax.jit(module.precompute)(obs)
 
     def loss(p, f):
         mean, _ = module.apply(p, obs, None, f)
         return jnp.sum(jnp.sin(mean))
 
-    np.testing.assert_allclose(module.apply(params, obs, None, feats)[0],
-                               module.apply(params, obs)[0], rtol=1e-5, atol=1e-5)
-    g_with = jax.grad(loss)(params, feats)
-    g_without = jax.grad(lambda p: loss(p, None))(params)
+    # each path jitted on its own (op by op, the RMP² tree took 20 s to dispatch)
+    np.testing.assert_allclose(jax.jit(lambda p, f: module.apply(p, obs, None, f)[0])(
+        params, feats), jax.jit(lambda p: module.apply(p, obs)[0])(params), rtol=1e-5, atol=1e-5)
+    g_with = jax.jit(jax.grad(loss))(params, feats)
+    g_without = jax.jit(jax.grad(lambda p: loss(p, None)))(params)
     jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5),
                  g_with, g_without)
 
@@ -91,8 +97,9 @@ def test_other_policies_with_a_precomputed_base_match(kind):
     """The policies whose hand-designed part is an additive acceleration precompute it too."""
     env = envs.make("three_link/env3")
     module = make_policy(kind, env)
-    obs = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(2), 5)).obs
-    params = module.init(jax.random.PRNGKey(3), obs)
-    np.testing.assert_array_equal(module.apply(params, obs, None, module.precompute(obs))[0],
-                                  module.apply(params, obs)[0])
+    obs = _reset_obs(env, 2, 5)
+    params = jax.jit(module.init)(jax.random.PRNGKey(3), obs)
+    base = jax.jit(module.precompute)(obs)
+    np.testing.assert_array_equal(jax.jit(lambda p, b: module.apply(p, obs, None, b)[0])(
+        params, base), jax.jit(lambda p: module.apply(p, obs)[0])(params))
 

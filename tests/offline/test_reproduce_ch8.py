@@ -384,23 +384,14 @@ def test_goal_deadline_datasets_are_named_and_keyed(tmp_path):
         parse_args([*base, "--beta", "-1"])
 
 
-def test_substeps_collects_and_loads_at_that_control_rate(tmp_path):
-    """``--substeps 24``: the data are collected and checked with 24 physics substeps per
-    control step and a 75-step horizon (10 Hz, the same 7.5 s episodes)."""
-    args = parse_args(["--out", str(tmp_path), "--recipes", "random", "--scale", "1",
-                           "--substeps", "24", "--no-safety"])
-    ch8.collect_stage(args)
-    ds = ch8.load_dataset(args, "random-full")
-    assert ds.metadata["horizon"] == 75 and ds.size == 75
-    assert ds.metadata["env_kwargs"]["substeps"] == 24
-
-
 def test_learning_curves_end_at_the_final_scores_and_the_goal_form_is_trained(tmp_path,
                                                                                monkeypatch):
     """``--curve``: one evaluation per chunk in every row, the last equal to the row's final
     evaluation (same parameters, same episodes); the figures stage draws fig8_curves.png.
     ``--reward-form goal``: the program trains on ``r − r_max`` (non-positive) and its negation
-    (non-negative); the negated row records the form, the zero row does not."""
+    (non-negative); the negated row records the form, the zero row does not.
+    ``--substeps 24``: the data are collected and checked with 24 physics substeps per control
+    step and a 75-step horizon (10 Hz, the same 7.5 s episodes)."""
     seen = []
     rows_of = sweep.reward_rows
 
@@ -410,14 +401,18 @@ def test_learning_curves_end_at_the_final_scores_and_the_goal_form_is_trained(tm
         return base, rows
 
     monkeypatch.setattr(sweep, "reward_rows", recording)
-    argv = ["--out", str(tmp_path), "--recipes", "mixed", "--datasets", "mixed-full",
+    # the random recipe: one behaviour to collect (mixed has four), the same stages after it
+    argv = ["--out", str(tmp_path), "--recipes", "random", "--datasets", "random-full",
             "--learners", "ATAC", "--rewards", "negated", "zero", "--no-safety", "--scale",
-            "1", "--steps", "40", "--chunk", "20", "--hidden", "16", "16", "--seeds", "2",
-            "--eval-episodes", "2", "--reference-episodes", "4", "--batch", "32", "--curve",
-            "--reward-form", "goal"]
+            "1", "--substeps", "24", "--steps", "40", "--chunk", "20", "--hidden", "16", "16",
+            "--seeds", "2", "--eval-episodes", "2", "--reference-episodes", "4", "--batch",
+            "32", "--curve", "--reward-form", "goal"]
     ch8_report.run(parse_args(argv))
     (shifted, (_, r_max), trained), = seen
-    true = np.asarray(ch8.load_dataset(parse_args(argv), "mixed-full").rewards)
+    ds = ch8.load_dataset(parse_args(argv), "random-full")
+    assert ds.metadata["horizon"] == 75 and ds.size == 75
+    assert ds.metadata["env_kwargs"]["substeps"] == 24
+    true = np.asarray(ds.rewards)
     np.testing.assert_allclose(shifted, true - r_max, rtol=0, atol=1e-6)
     assert (shifted <= 0).all() and (trained[0] >= 0).all() and (trained[1] == 0).all()
     np.testing.assert_array_equal(trained[0], -shifted)
@@ -432,11 +427,11 @@ def test_learning_curves_end_at_the_final_scores_and_the_goal_form_is_trained(tm
             assert curve[k][-1] == r[k], k
     assert (tmp_path / "fig8_curves.png").stat().st_size > 0
     cells = ch8_analysis.load_cells(parse_args(argv))
-    assert set(cells) == {("mixed-full", "ATAC", "negated"), ("mixed-full", "ATAC", "zero")}
+    assert set(cells) == {("random-full", "ATAC", "negated"), ("random-full", "ATAC", "zero")}
     # the environment's form shares the zero cell but not the negated one
     env_form = ch8_analysis.load_cells(parse_args(argv[:-2]))
-    assert set(env_form) == {("mixed-full", "ATAC", "zero")}
-    c = cells[("mixed-full", "ATAC", "zero")]
+    assert set(env_form) == {("random-full", "ATAC", "zero")}
+    c = cells[("random-full", "ATAC", "zero")]
     assert c["curve"]["mean"][-1] == pytest.approx(c["mean"])
 
 

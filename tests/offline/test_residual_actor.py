@@ -64,7 +64,7 @@ def states():
 
 def _reference_base(inputs) -> np.ndarray:
     cfg = rmp_policies.default_config("three_link", BASE_VARIANT)
-    a_h = jax.vmap(lambda *a: rmp_policies.acceleration(cfg, *a))(*inputs)
+    a_h = jax.jit(jax.vmap(lambda *a: rmp_policies.acceleration(cfg, *a)))(*inputs)
     return np.arctanh(np.clip(np.asarray(a_h, np.float64), -BASE_CLIP, BASE_CLIP))
 
 
@@ -153,9 +153,9 @@ def test_precomputed_bases_are_the_actors_own(states, monkeypatch):
     inside = jax.jit(jax.value_and_grad(lambda p: loss(p, None)))(params)
     for got, want in zip(jax.tree.leaves(with_base), jax.tree.leaves(inside), strict=True):
         np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-4, atol=1e-5)
-    dist = apply_actor(actor, params, obs, bases.observations)
-    np.testing.assert_allclose(np.asarray(dist.mean), np.asarray(actor.apply(params, obs).mean),
-                               atol=1e-5)
+    mean = jax.jit(lambda p, b: apply_actor(actor, p, obs, b).mean)(params, bases.observations)
+    np.testing.assert_allclose(np.asarray(mean),
+                               np.asarray(jax.jit(actor.apply)(params, obs).mean), atol=1e-5)
 
 
 def test_learners_train_from_the_base_with_the_residual_actor(states):
@@ -165,12 +165,13 @@ def test_learners_train_from_the_base_with_the_residual_actor(states):
     ref = np.clip(np.tanh(_reference_base(inputs)), -1, 1)
     for learner in ("BC", "Oracle", "IQL", "CQL"):
         trainer = experiment.build(learner, ds, None, budget)
-        state = trainer.init(jax.random.PRNGKey(0))
+        state = jax.jit(trainer.init)(jax.random.PRNGKey(0))
+        act = jax.jit(trainer.act)
         params = _zeroed(actor_params(state))
-        np.testing.assert_allclose(np.asarray(trainer.act(params, obs)), ref, atol=2e-4)
+        np.testing.assert_allclose(np.asarray(act(params, obs)), ref, atol=2e-4)
         state, metrics = jax.jit(trainer.run, static_argnums=1)(state, 20)
         assert all(np.isfinite(np.asarray(v)).all() for v in jax.tree.leaves(metrics)), learner
-        assert np.isfinite(np.asarray(trainer.act(actor_params(state), obs))).all()
+        assert np.isfinite(np.asarray(act(actor_params(state), obs))).all()
 
 
 def test_reward_batched_programs_get_concrete_bases(states, monkeypatch):

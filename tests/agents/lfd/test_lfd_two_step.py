@@ -34,6 +34,9 @@ DT = 0.1
 OFFSETS = np.array([[0.0, 1.0, 2.0, 3.0, 5.0], [5.0, 0.0, 1.0, 2.0, 3.0],
                     [1.0, 2.0, 3.0, 5.0, 0.0]]).T                       # (N, K)
 LENGTHS = (12, 12, 12, 11, 12)
+# The potential and its gradient compiled once per dtype and shape (op by op they dominated).
+POTENTIAL = jax.jit(nom.nominal_potential)
+GRADIENT = jax.jit(nom.nominal_potential_gradient)
 
 
 def _hand_made() -> StackedDemos:
@@ -111,16 +114,15 @@ def test_padded_float32_potential_equals_the_float64_fit(hand_made, hand_fit):
                                        velocities=jnp.asarray(vel[i, :LENGTHS[i], k]),
                                        sigma=sigma, eta=10.0, lam=1e-3)
             x = zeta[rng.integers(0, len(zeta), 32)] + 0.05 * rng.standard_normal((32, 3))
-            g_ref = np.asarray(nom.nominal_potential_gradient(ref, jnp.asarray(x)))
-            v_ref = np.asarray(nom.nominal_potential(ref, jnp.asarray(x)))
+            g_ref = np.asarray(GRADIENT(ref, jnp.asarray(x)))
+            v_ref = np.asarray(POTENTIAL(ref, jnp.asarray(x)))
         p = jax.tree.map(lambda a, k=k: a[k], hand_fit.potential)
         assert p.centers.shape == (12, 3) and p.centers.dtype == jnp.float32
         xf = jnp.asarray(x, jnp.float32)
-        np.testing.assert_allclose(nom.nominal_potential_gradient(p, xf), g_ref,
-                                   rtol=1e-4, atol=1e-5)
-        np.testing.assert_allclose(nom.nominal_potential(p, xf), v_ref, rtol=1e-4, atol=1e-5)
+        np.testing.assert_allclose(GRADIENT(p, xf), g_ref, rtol=1e-4, atol=1e-5)
+        np.testing.assert_allclose(POTENTIAL(p, xf), v_ref, rtol=1e-4, atol=1e-5)
         # the goal is a zero of the potential (offset), padding included
-        assert abs(float(nom.nominal_potential(p, jnp.zeros(3)))) < 1e-5
+        assert abs(float(POTENTIAL(p, jnp.zeros(3)))) < 1e-5
 
 
 def test_metric_fit_by_eq_5_6_reduces_the_loss(hand_made, hand_fit):
@@ -130,7 +132,7 @@ def test_metric_fit_by_eq_5_6_reduces_the_loss(hand_made, hand_fit):
     exactly and the leaf's velocity is ``−∇Φ``."""
     N, T = hand_made.mask.shape
     x = (hand_made.points - hand_made.goals[:, None]).reshape(N * T, 3, 3)
-    grad = jax.vmap(nom.nominal_potential_gradient, in_axes=(0, 1), out_axes=1)(
+    grad = jax.jit(jax.vmap(nom.nominal_potential_gradient, in_axes=(0, 1), out_axes=1))(
         hand_fit.potential, x)
     G_star = np.diag([4.0, 1.0, 0.25])
     xd = -np.einsum("ab,skb->ska", np.linalg.inv(G_star), np.asarray(grad, np.float64))
@@ -153,28 +155,29 @@ def test_metric_fit_by_eq_5_6_reduces_the_loss(hand_made, hand_fit):
 
     # a trained metric stays positive definite; at initialisation it is I and v = −∇Φ
     xs = jax.random.normal(jax.random.PRNGKey(1), (64, 3, 3)) * 0.3
-    G = jax.vmap(lambda xx: T2.leaf_rmps(cfg, res, xx).M)(xs)
+    leaf_rmps = jax.jit(jax.vmap(lambda r, xx: T2.leaf_rmps(cfg, r, xx), in_axes=(None, 0)))
+    G = leaf_rmps(res, xs).M
     assert float(jnp.min(jnp.linalg.eigvalsh(G))) > 0.0
     # importance normalisation: c_k = weighted mean of tr G_k/3 over the samples, and the leaf's
     # own velocity (eq 5.6's fit) is unchanged by it
-    raw = np.asarray(jax.vmap(lambda mp, xk: cfg.metric.apply({"params": mp}, xk),
-                              in_axes=(0, 1), out_axes=1)(res.params["metric"], samples.x),
+    raw = np.asarray(jax.jit(jax.vmap(lambda mp, xk: cfg.metric.apply({"params": mp}, xk),
+                                      in_axes=(0, 1), out_axes=1))(res.params["metric"],
+                                                                   samples.x),
                      np.float64)                                            # (S, K, 3, 3)
     c_ref = (np.asarray(w)[:, None] * np.trace(raw, axis1=-2, axis2=-1) / 3).sum(0) / np.sum(w)
     np.testing.assert_allclose(res.params["scale"], c_ref, rtol=1e-5)
     assert np.all(np.asarray(res.params["scale"]) > 1.5)   # fitted G ≈ diag(4, 1, 0.25)·…
-    rmp = jax.vmap(lambda xx: T2.leaf_rmps(cfg, res, xx))(samples.x[:16])
+    rmp = leaf_rmps(res, samples.x[:16])
     v = np.linalg.solve(np.asarray(rmp.M, np.float64), np.asarray(rmp.f, np.float64)[..., None])
     v_raw = np.linalg.solve(raw[:16], -np.asarray(grad, np.float64)[:16, ..., None])
     np.testing.assert_allclose(v[..., 0], v_raw[..., 0], rtol=1e-4, atol=1e-6)
-    res0 = T2.make_train(cfg.replace(metric_iterations=0))(jax.random.PRNGKey(0), samples,
-                                                           hand_fit)
-    rmp = jax.vmap(lambda xx: T2.leaf_rmps(cfg, res0, xx))(xs)
+    res0 = jax.jit(T2.make_train(cfg.replace(metric_iterations=0)))(jax.random.PRNGKey(0),
+                                                                    samples, hand_fit)
+    rmp = leaf_rmps(res0, xs)
     np.testing.assert_allclose(rmp.M, np.broadcast_to(np.eye(3), rmp.M.shape), atol=1e-6)
     v = jnp.linalg.solve(rmp.M, rmp.f[..., None])[..., 0]
-    autodiff = jax.vmap(jax.vmap(jax.grad(nom.nominal_potential, argnums=1)),
-                        in_axes=(None, 0))(
-        hand_fit.potential, xs)
+    autodiff = jax.jit(jax.vmap(jax.vmap(jax.grad(nom.nominal_potential, argnums=1)),
+                                in_axes=(None, 0)))(hand_fit.potential, xs)
     np.testing.assert_allclose(v, -autodiff, rtol=1e-4, atol=1e-5)
 
 
@@ -229,8 +232,8 @@ def test_policy_descends_the_lyapunov_function(trained):
     qd = jax.jit(jax.vmap(lambda q: execution.policy_velocity(cfg, res, q, goals, q_goal)))(qs)
     dV = jax.jit(jax.vmap(jax.grad(lambda q: T2.lyapunov(cfg, res, q, goals))))(qs)
     J = np.asarray(jax.jit(jax.vmap(jax.jacfwd(fd.hand_points)))(qs), np.float64)  # (B,K,3,7)
-    x = np.asarray(jax.vmap(fd.hand_points)(qs)) - np.asarray(goals)
-    G = np.asarray(jax.vmap(lambda xx: T2.leaf_rmps(cfg, res, xx).M)(jnp.asarray(x)),
+    x = np.asarray(jax.jit(jax.vmap(fd.hand_points))(qs)) - np.asarray(goals)
+    G = np.asarray(jax.jit(jax.vmap(lambda xx: T2.leaf_rmps(cfg, res, xx).M))(jnp.asarray(x)),
                    np.float64)
     M = np.einsum("bkaq,bkac,bkcr->bqr", J, G + cfg.default_weight * np.eye(3), J)
     dV = np.asarray(dV, np.float64)
