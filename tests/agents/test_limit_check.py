@@ -6,6 +6,8 @@ substeps (docs/design.md §5.9) changes no trajectory."""
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -51,13 +53,20 @@ def _rollout(env, steps: int, batch: int) -> np.ndarray:
                                                      actions)[1])(keys))
 
 
+@functools.cache
+def _rollout_of(name: str, **env_kwargs: bool) -> np.ndarray:
+    """:func:`_rollout` of ``envs.make(name, **env_kwargs)`` (40 steps × 4 environments),
+    computed once per module (the looped model is shared by two tests)."""
+    return _rollout(envs.make(name, **env_kwargs), 40, 4)
+
+
 @pytest.mark.parametrize("name,tol", [("three_link/env3", 0.0), ("franka", 1e-5)])
 def test_trajectories_with_and_without_the_constraint_pipeline_agree(name, tol):
     """Random actions, 40 control steps × 4 environments: the joint positions agree exactly for
     the 3-link (no limited joints) and to 1e-5 rad for the Franka (float rounding of the
     solver's unconstrained pass; no limit is touched)."""
-    off = _rollout(envs.make(name), 40, 4)
-    on = _rollout(envs.make(name, constraint_stages=True), 40, 4)
+    off = _rollout_of(name, unroll_substeps=False)
+    on = _rollout_of(name, constraint_stages=True, unroll_substeps=False)
     assert np.isfinite(off).all()
     np.testing.assert_allclose(off, on, rtol=0, atol=tol)
 
@@ -71,9 +80,8 @@ def test_unrolled_substeps_give_the_same_trajectories(name):
     assert looped.substep_unroll == (looped.substeps if jax.default_backend() == "gpu" else 1)
     written = envs.make(name, unroll_substeps=True)
     assert written.substep_unroll == written.substeps
-    np.testing.assert_allclose(_rollout(written, 40, 4),
-                               _rollout(envs.make(name, unroll_substeps=False), 40, 4),
-                               rtol=0, atol=1e-6)
+    np.testing.assert_allclose(_rollout_of(name, unroll_substeps=True),
+                               _rollout_of(name, unroll_substeps=False), rtol=0, atol=1e-6)
     with pytest.raises(ValueError, match="unroll_substeps"):
         envs.make(name, unroll_substeps=1)
 
