@@ -27,11 +27,9 @@ its manifest (:func:`agents.run.export.export_policy`; load it with ``scripts/lo
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import datetime
 import functools
-import importlib.metadata
 import json
 import os
 import platform
@@ -54,6 +52,7 @@ from agents.run import checkpoint
 from mjxrmp.atomic import atomic_write
 from mjxrmp.geometry import make_obstacles
 from mjxrmp.learned.nominal import NominalPotential
+from mjxrmp.results.summary import package_versions
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "KINDS", "SKILL_FILE", "Skill", "SkillFormatError",
            "export_skill", "franka_skill", "lasa_skill", "load_skill", "save_franka_skills",
@@ -141,11 +140,8 @@ def _compiled(kind: str, config: Any, execution: ExecutionParams | None,
 
 
 def _versions() -> dict[str, str]:
-    out = {"python": platform.python_version()}
-    for name in ("jax", "jaxlib", "flax", "orbax-checkpoint", "mjxrmp"):
-        with contextlib.suppress(importlib.metadata.PackageNotFoundError):
-            out[name] = importlib.metadata.version(name)
-    return out
+    return {"python": platform.python_version(),
+            **package_versions(("jax", "jaxlib", "flax", "orbax-checkpoint", "mjxrmp"))}
 
 
 def _floats(a: Any) -> Any:

@@ -21,6 +21,7 @@ import datetime
 import json
 import os
 import platform
+from collections.abc import Sequence
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -104,6 +105,17 @@ def cpu_name() -> str:
     return f"CPU ({os.cpu_count()}-core {model or platform.machine()})"
 
 
+def package_versions(packages: Sequence[str] = PACKAGES) -> dict[str, str]:
+    """The installed version of each of ``packages`` (those not installed are left out)."""
+    versions = {}
+    for pkg in packages:
+        try:
+            versions[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            continue
+    return versions
+
+
 def run_record(command: str, device: str | None = None) -> dict:
     """The ``runs`` entry for a run made now: command, device, package versions and date. XLA
     flags set by the user (not the CPU workaround every script sets, docs/design.md §5.2) change
@@ -116,13 +128,7 @@ def run_record(command: str, device: str | None = None) -> dict:
 
         dev = jax.devices()[0]
         device = dev.device_kind if dev.platform != "cpu" else cpu_name()
-    versions = {}
-    for pkg in PACKAGES:
-        try:
-            versions[pkg] = metadata.version(pkg)
-        except metadata.PackageNotFoundError:
-            continue
-    return {"command": command, "device": device, "versions": versions,
+    return {"command": command, "device": device, "versions": package_versions(),
             "date": datetime.date.today().isoformat()}
 
 
