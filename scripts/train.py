@@ -17,6 +17,12 @@ Examples::
     python scripts/train.py --env three_link/env1 --policy nn --seeds 0 1 2 3 --preset thesis
     python scripts/train.py --out runs/my_run --resume
     python scripts/train.py --set learning_rate=1e-4 --set total_iterations=50
+    python scripts/train.py --seeds 0 1 --grid learning_rate=1e-4,3e-4 --grid ent_coef=0,0.01
+
+``--grid NAME=V1,V2,...`` (repeatable) trains a packed sweep instead: every point of the grid ×
+every seed in one compiled program (:mod:`agents.run.sweep`), into ``--out`` (default
+``runs/sweep_<env>_<policy>``) with one ordinary run directory per point, ``sweep.csv`` and
+``sweep_curves.png``.
 """
 
 from __future__ import annotations
@@ -35,7 +41,9 @@ import jax  # noqa: E402
 
 import envs  # noqa: E402
 from agents.ppo import KINDS, make_mesh  # noqa: E402
+from agents.ppo.hparams import SWEEPABLE  # noqa: E402
 from agents.run.spec import PRESETS, RunSpec, parse_overrides, preset  # noqa: E402
+from agents.run.sweep import SweepSpec, parse_grid, run_sweep  # noqa: E402
 from agents.run.training import (  # noqa: E402
     RunDirectoryInUseError,
     result_summary,
@@ -70,6 +78,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--distributed", action="store_true",
                    help="call jax.distributed.initialize() first (multi-host runs)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--grid", action="append", default=[], metavar="NAME=V1,V2,...",
+                   help=f"sweep a hyper-parameter (repeatable; one of {list(SWEEPABLE)}): all "
+                        "points × seeds train in one program")
     args = p.parse_args(argv)
 
     if args.env not in envs.ENVIRONMENTS:
@@ -88,15 +99,24 @@ def main(argv: list[str] | None = None) -> int:
                        ppo=preset(args.preset, **overrides), log_every=args.log_every,
                        checkpoint_every=args.checkpoint_every,
                        keep_checkpoints=args.keep_checkpoints or None)
+        sweep = SweepSpec(spec, parse_grid(args.grid)) if args.grid else None
     except (TypeError, ValueError) as e:
         p.error(str(e))
-    out = args.out or os.path.join("runs", f"{args.env.replace('/', '-')}_{args.policy}")
+    if sweep is not None and (args.devices or 1) > 1:
+        p.error("--grid runs on one device; leave out --devices")
+    stem = f"{args.env.replace('/', '-')}_{args.policy}"
+    out = args.out or os.path.join("runs", f"sweep_{stem}" if sweep else stem)
     print(f"training {spec.policy} on {spec.env}, seeds {list(spec.seeds)}, preset "
           f"{args.preset}: {spec.ppo.total_iterations} iterations × {spec.ppo.batch_size} "
           f"steps → {out}", file=sys.stderr)
+    if sweep is not None:
+        print(f"sweep of {len(sweep.points())} points × {len(spec.seeds)} seeds in one program",
+              file=sys.stderr)
     try:
-        result = run_training(spec, out, resume=args.resume, progress=not args.no_progress,
-                              mesh=make_mesh(args.devices))
+        result = (run_sweep(sweep, out, resume=args.resume, progress=not args.no_progress)
+                  if sweep is not None else
+                  run_training(spec, out, resume=args.resume, progress=not args.no_progress,
+                               mesh=make_mesh(args.devices)))
     except (FileExistsError, FileNotFoundError, ValueError, RunDirectoryInUseError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -107,7 +127,10 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     if result.history:
         print(result_summary(result), file=sys.stderr)
-    print(f"wrote {out}/metrics.csv, learning_curves.png, tb/, checkpoints/", file=sys.stderr)
+    print(f"wrote {out}/" + ("sweep.csv, sweep_curves.png and one run directory per point"
+                             if sweep is not None else
+                             "metrics.csv, learning_curves.png, tb/, checkpoints/"),
+          file=sys.stderr)
     return 0
 
 

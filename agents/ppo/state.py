@@ -31,7 +31,9 @@ class TrainState(NamedTuple):
 
     ``key`` is the run's raw ``uint32 (2,)`` key; iteration ``i`` uses ``fold_in(key, i)``, so a
     run split into chunks (or resumed from a checkpoint) draws the same random numbers as an
-    uninterrupted one. ``iteration`` counts the iterations done.
+    uninterrupted one. ``iteration`` counts the iterations done. ``hparams`` (None for an
+    ordinary run) holds the run's own values of scalar hyper-parameters in a packed sweep
+    (:mod:`agents.ppo.hparams`); checkpoints of a sweep's runs are written without it.
     """
 
     params: dict[str, Any]
@@ -42,6 +44,7 @@ class TrainState(NamedTuple):
     obs_stats: RunningStats
     key: jax.Array
     iteration: jax.Array
+    hparams: dict[str, jax.Array] | None = None
 
 
 def raw_key(key: jax.Array) -> jax.Array:

@@ -19,6 +19,7 @@ import optax
 from jax.sharding import Mesh
 
 from agents.ppo.config import PPOConfig
+from agents.ppo.hparams import resolve
 from agents.ppo.losses import gae, ppo_loss
 from agents.ppo.networks import PPONetworks
 from agents.ppo.normalization import update_stats
@@ -28,9 +29,11 @@ from agents.ppo.state import TrainState, Transition
 
 
 def make_optimizer(config: PPOConfig) -> optax.GradientTransformation:
-    """Adam (``learning_rate``, ``adam_eps``) after global-norm clipping at ``max_grad_norm``
-    (none when it is None)."""
-    tx = optax.adam(config.learning_rate, eps=config.adam_eps)
+    """Adam at unit step size (``adam_eps``) after global-norm clipping at ``max_grad_norm``
+    (none when it is None). The update scales its output by the learning rate
+    (:func:`agents.ppo.hparams.resolve`): the values of ``optax.adam(learning_rate)`` bit for
+    bit (a sign flip, then one product rounded once) and the same optimiser state."""
+    tx = optax.adam(1.0, eps=config.adam_eps)
     if config.max_grad_norm is not None:
         tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), tx)
     return tx
@@ -71,43 +74,43 @@ def make_update(nets: PPONetworks, tx: optax.GradientTransformation, config: PPO
     constrain_blocks = batch_axis_sharding(mesh, blocks)
     constrain_mb = batch_axis_sharding(mesh, config.minibatch_size)
 
-    def loss(params, batch, stats):
+    def loss(params, batch, stats, hp):
         features = batch.get("policy_features")
         return ppo_loss(params, batch, lambda p, o: nets.policy_apply(p, o, stats, features),
-                        lambda p, o: nets.value_apply(p, o, stats), config.clip_eps,
-                        config.vf_coef, config.ent_coef, config.normalize_advantages)
+                        lambda p, o: nets.value_apply(p, o, stats), hp.clip_eps,
+                        hp.vf_coef, hp.ent_coef, config.normalize_advantages)
 
     loss_grad = jax.value_and_grad(loss, has_aux=True)
 
-    def update_minibatch(carry, mb):
-        params, opt_state, stats = carry
-        (_, metrics), grads = loss_grad(params, constrain_mb(mb), stats)
-        updates, opt_state = tx.update(grads, opt_state, params)
-        return (optax.apply_updates(params, updates), opt_state, stats), metrics
+    def epochs(params, opt_state, stats, flat, keys, hp):
+        def update_minibatch(carry, mb):
+            params, opt_state = carry
+            (_, metrics), grads = loss_grad(params, constrain_mb(mb), stats, hp)
+            updates, opt_state = tx.update(grads, opt_state, params)
+            updates = jax.tree.map(lambda u: hp.learning_rate * u, updates)
+            return (optax.apply_updates(params, updates), opt_state), metrics
 
-    def update_epoch(carry, key):
-        params, opt_state, stats, flat = carry
-        perm = jax.vmap(lambda k: jax.random.permutation(k, block_len))(
-            jax.random.split(key, blocks))
-        mbs = constrain_mb(jax.tree.map(lambda x: _minibatches(x, perm, n_mb), flat), 1)
-        (params, opt_state, _), metrics = jax.lax.scan(
-            update_minibatch, (params, opt_state, stats), mbs)
-        return (params, opt_state, stats, flat), metrics
+        def update_epoch(carry, key):
+            perm = jax.vmap(lambda k: jax.random.permutation(k, block_len))(
+                jax.random.split(key, blocks))
+            mbs = constrain_mb(jax.tree.map(lambda x: _minibatches(x, perm, n_mb), flat), 1)
+            return jax.lax.scan(update_minibatch, carry, mbs)
+
+        return jax.lax.scan(update_epoch, (params, opt_state), keys)
 
     def update(ts, tr, key):
-        stats = ts.obs_stats
+        stats, hp = ts.obs_stats, resolve(config, ts.hparams)
         last_value = nets.value_apply(ts.params["value"], ts.env_state.obs, stats)
         adv, ret = gae(tr.rewards, tr.values, tr.dones, tr.truncations, last_value,
-                       config.gamma, config.gae_lambda)
+                       hp.gamma, hp.gae_lambda)
         flat = {"obs": tr.obs, "actions": tr.actions, "log_probs": tr.log_probs,
                 "advantages": adv, "returns": ret}
         features = nets.policy_features(tr.obs)  # once per state, not once per epoch
         if features is not None:
             flat["policy_features"] = features
         flat = constrain_blocks(jax.tree.map(lambda x: _to_blocks(x, blocks), flat))
-        (params, opt_state, _, _), upd = jax.lax.scan(
-            update_epoch, (ts.params, ts.opt_state, stats, flat),
-            jax.random.split(key, config.update_epochs))
+        (params, opt_state), upd = epochs(ts.params, ts.opt_state, stats, flat,
+                                          jax.random.split(key, config.update_epochs), hp)
         if config.normalize_observations:
             stats = update_stats(stats, tr.obs)
         metrics = {k: jnp.mean(v) for k, v in upd.items()}

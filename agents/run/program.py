@@ -33,7 +33,7 @@ class Program:
     trainer: Trainer
     init: Callable
     run: Callable
-    executables: dict[int, Any] = dataclasses.field(default_factory=dict)
+    executables: dict[tuple[int, Any], Any] = dataclasses.field(default_factory=dict)
     #: ``init`` per seed count (from its exported program where there is one).
     inits: dict[int, Any] = dataclasses.field(default_factory=dict)
     compile_seconds: float = 0.0
@@ -45,13 +45,14 @@ class Program:
         """The compiled ``run(·, n)`` (compiled on first use, from the exported program of an
         earlier process where there is one: :func:`agents.run.program_cache.exported`; the time
         is added to ``compile_seconds``)."""
-        if n not in self.executables:
+        key = (n, jax.tree.structure(state))  # a sweep's state also carries hparams
+        if key not in self.executables:
             t0 = time.perf_counter()
-            self.executables[n] = self._from_artifact(
+            self.executables[key] = self._from_artifact(
                 lambda s: self.run(s, n), (state,), {"chunk": n}) or self.run.lower(
                 state, n).compile()
             self.compile_seconds += time.perf_counter() - t0
-        return self.executables[n]
+        return self.executables[key]
 
     def _from_artifact(self, fn: Callable, args: tuple, what: dict[str, Any]
                        ) -> Callable | None:

@@ -174,6 +174,10 @@ class _RunLog:
         if self.bar is not None:
             self.bar.close()
 
+    def close(self) -> None:
+        """Close the TensorBoard writer."""
+        self.tb.close()
+
 
 class _Saver:
     """Checkpoints of the run (each iteration count written once)."""
@@ -191,11 +195,11 @@ class _Saver:
         self.saved = at
 
 
-def _divergence(spec: RunSpec, metrics: dict[str, np.ndarray], params: Any,
+def _divergence(runs: list[str], metrics: dict[str, np.ndarray], params: Any,
                 start: int) -> DivergenceError | None:
     """What went non-finite in the chunk of iterations after ``start`` (its metrics first, then
-    the parameters it ends with, reduced to one flag on the device), or None if nothing did."""
-    runs = [f"seed {s}" for s in spec.seeds]
+    the parameters it ends with, reduced to one flag on the device), or None if nothing did;
+    ``runs`` names the rows of the vmapped axis."""
     fault = first_nonfinite_metric(metrics)
     if fault is not None:
         it, s, name, value = fault
@@ -219,13 +223,15 @@ def _divergence_error(error: DivergenceError, ckpt_dir: str) -> DivergenceError:
 
 
 def _train_chunks(program: Program, spec: RunSpec, state: TrainState, done: int,
-                  log: _RunLog, saver: _Saver) -> tuple[TrainState, int, float]:
+                  log: _RunLog, saver: _Saver, runs: list[str] | None = None
+                  ) -> tuple[TrainState, int, float]:
     """Run chunks of ``log_every`` iterations up to ``total_iterations``, logging each and
     checkpointing every ``checkpoint_every`` and at the end; on Ctrl-C checkpoint what is done
     and re-raise; on a non-finite metric or parameter log the chunk and raise
     :class:`DivergenceError` (without checkpointing it). Returns ``(state, iterations done,
-    training seconds)``."""
+    training seconds)``. ``runs`` names the rows of the vmapped axis (default: the seeds)."""
     total, train_s, diverged = spec.ppo.total_iterations, 0.0, None
+    runs = runs or [f"seed {s}" for s in spec.seeds]
     try:
         while done < total:
             start, n = done, min(spec.log_every, total - done)
@@ -235,7 +241,7 @@ def _train_chunks(program: Program, spec: RunSpec, state: TrainState, done: int,
             metrics = jax.tree.map(np.asarray, metrics)  # blocks until the chunk is done
             dt = time.perf_counter() - t0
             train_s += dt
-            diverged = _divergence(spec, metrics, new_state.params, start)
+            diverged = _divergence(runs, metrics, new_state.params, start)
             if diverged is None:
                 state, done = new_state, start + n
             log.append(metrics, start, start + n, dt)
@@ -252,7 +258,7 @@ def _train_chunks(program: Program, spec: RunSpec, state: TrainState, done: int,
                   f"{saver.ckpt_dir}; continue with --resume", file=sys.stderr)
         raise
     finally:
-        log.tb.close()
+        log.close()
     log.close_bar()
     return state, done, train_s
 

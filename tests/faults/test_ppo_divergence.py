@@ -6,7 +6,6 @@ with status 3."""
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import subprocess
 import sys
@@ -69,12 +68,12 @@ def test_nonfinite_parameter_is_named_by_path(diverged):
     params = jax.tree.map(lambda x: np.concatenate([x, x]), load_run(diverged).state.params)
     path, leaf = jax.tree_util.tree_flatten_with_path(params)[0][-1]
     leaf[1].flat[0] = np.inf
-    spec = dataclasses.replace(DIVERGING, seeds=(0, 7))
+    runs = ["seed 0", "seed 7"]
     metrics = {"loss": np.zeros((2, 3)), "mean_reward": np.zeros((2, 3))}
-    assert str(_divergence(spec, metrics, params, 4)) == (
+    assert str(_divergence(runs, metrics, params, 4)) == (
         f"training diverged at iteration 7 (seed 7): params{jax.tree_util.keystr(path)} is inf")
     params = jax.tree.map(lambda x: np.nan_to_num(x, posinf=0.0), params)
-    assert _divergence(spec, metrics, params, 4) is None
+    assert _divergence(runs, metrics, params, 4) is None
 
 
 def test_summary_of_a_nonfinite_run_gives_no_verdict(diverged):

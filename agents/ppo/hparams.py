@@ -1,0 +1,46 @@
+"""Scalar PPO hyper-parameters as data (docs/design.md §2.3): what lets one compiled program
+train several runs that differ only in these values (:mod:`agents.run.sweep`).
+
+A :class:`agents.ppo.state.TrainState` may carry ``hparams``, a dict from some of
+:data:`SWEEPABLE` to float32 scalars (one per run under the ``vmap`` over runs); the update reads
+each value from there and every other value from the :class:`~agents.ppo.config.PPOConfig`
+(:func:`resolve`). A state without ``hparams`` (``None``, every ordinary run) computes exactly
+what it computed before: the values are then the config's Python floats, constants of the
+program.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from agents.ppo.config import PPOConfig
+
+#: The :class:`PPOConfig` fields a packed sweep may vary per run: the Adam step size, the
+#: clipped-surrogate loss's coefficients (thesis §6.2.3) and the return's discounting (GAE).
+SWEEPABLE = ("learning_rate", "ent_coef", "clip_eps", "vf_coef", "gamma", "gae_lambda")
+
+
+@dataclasses.dataclass(frozen=True)
+class Values:
+    """The values the update uses (Python floats or traced float32 scalars)."""
+
+    learning_rate: Any
+    ent_coef: Any
+    clip_eps: Any
+    vf_coef: Any
+    gamma: Any
+    gae_lambda: Any
+
+
+def resolve(config: PPOConfig, hparams: dict[str, Any] | None) -> Values:
+    """The update's values: ``hparams[name]`` where given, else ``config.name``."""
+    given = hparams or {}
+    unknown = sorted(set(given) - set(SWEEPABLE))
+    if unknown:
+        raise ValueError(f"TrainState.hparams has unknown names {unknown}; sweepable names are "
+                         f"{list(SWEEPABLE)}")
+    return Values(**{k: given.get(k, getattr(config, k)) for k in SWEEPABLE})
+
+
+__all__ = ["SWEEPABLE", "Values", "resolve"]

@@ -1,0 +1,301 @@
+"""Packed sweeps: one compiled program trains every run of a grid of scalar PPO
+hyper-parameters × seeds (docs/design.md §2.3).
+
+A :class:`SweepSpec` is a base :class:`agents.run.spec.RunSpec` and a grid over names of
+:data:`agents.ppo.hparams.SWEEPABLE`; its *points* are the grid's cartesian product, each an
+ordinary ``RunSpec`` (the base with the point's values) trained for the base's seeds. All
+``points × seeds`` runs share the program of the first point (:func:`agents.run.program.build`):
+the runs are rows of its ``vmap``, and each row carries its own values in
+``TrainState.hparams`` (:mod:`agents.ppo.hparams`), so a point computes what its separate run
+computes up to float32 rounding (its values are data instead of constants).
+
+:func:`run_sweep` writes ``<out>/sweep.json`` (the sweep), ``<out>/sweep.csv`` (one row per point:
+its values and final metrics, mean ± std over seeds), ``<out>/sweep_curves.png`` and, per point,
+``<out>/<point name>/`` — an ordinary run directory (:mod:`agents.run.training`: ``run.json``,
+``metrics.csv``, TensorBoard, ``learning_curves.png``, checkpoints without ``hparams``), which
+``scripts/eval.py``, ``scripts/export.py`` and ``scripts/train.py --resume`` read like any other.
+``resume=True`` restores every point from its newest checkpoint and continues exactly as the
+uninterrupted sweep (iteration ``i`` of every row draws from ``fold_in(key, i)``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import json
+import os
+import warnings
+from typing import IO, Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from agents.ppo import TrainState
+from agents.ppo.hparams import SWEEPABLE
+from agents.run import checkpoint
+from agents.run.curves import episode_window
+from agents.run.logs import ProgressBar, summary_line
+from agents.run.program import Program, build, seed_keys
+from agents.run.spec import RunSpec
+from agents.run.training import (
+    RunResult,
+    _check_dir,
+    _history_from_json,
+    _plot,
+    _RunLog,
+    _Saver,
+    _train_chunks,
+    _write_spec,
+    lock_run_directory,
+)
+from mjxrmp.atomic import atomic_write
+from mjxrmp.config import check_float
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepSpec:
+    """A grid ``((name, (value, ...)), ...)`` of :data:`SWEEPABLE` hyper-parameters over the
+    ``base`` run (its seeds, length and logging cadence are every point's)."""
+
+    base: RunSpec
+    grid: tuple[tuple[str, tuple[float, ...]], ...]
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.base, RunSpec):
+            raise TypeError(f"SweepSpec.base must be a RunSpec, got {type(self.base).__name__}")
+        grid = tuple((name, tuple(values)) for name, values in dict(self.grid).items())
+        if not grid or len(grid) != len(self.grid):
+            raise ValueError(f"SweepSpec.grid must name each hyper-parameter once and at least "
+                             f"one, got {self.grid!r}")
+        for name, values in grid:
+            if name not in SWEEPABLE:
+                raise ValueError(f"SweepSpec.grid: {name!r} cannot be swept; sweepable names "
+                                 f"are {list(SWEEPABLE)}")
+            if not values or len(set(values)) != len(values):
+                raise ValueError(f"SweepSpec.grid[{name!r}] must list distinct values, got "
+                                 f"{values!r}")
+            for v in values:
+                check_float(v, f"SweepSpec.grid[{name!r}] value", allow_zero=True)
+        object.__setattr__(self, "grid", grid)
+        self.points()  # every point's PPOConfig validates its values
+
+    def points(self) -> list[tuple[str, RunSpec]]:
+        """``(name, spec)`` per point of the grid, in row-major order of :attr:`grid`."""
+        names = [name for name, _ in self.grid]
+        out = []
+        for values in itertools.product(*(v for _, v in self.grid)):
+            point = dict(zip(names, values, strict=True))
+            spec = dataclasses.replace(self.base,
+                                       ppo=dataclasses.replace(self.base.ppo, **point))
+            out.append((",".join(f"{k}={v:g}" for k, v in point.items()), spec))
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        """The sweep as JSON data (``sweep.json``)."""
+        return {"base": self.base.to_json(), "grid": {k: list(v) for k, v in self.grid},
+                "points": [name for name, _ in self.points()]}
+
+
+def parse_grid(items: list[str]) -> tuple[tuple[str, tuple[float, ...]], ...]:
+    """``["learning_rate=1e-4,3e-4", "ent_coef=0,0.01"]`` → the grid of a :class:`SweepSpec`;
+    an error names the item and what was expected."""
+    grid = []
+    for item in items:
+        name, sep, values = item.partition("=")
+        try:
+            parsed = tuple(float(v) for v in values.split(","))
+        except ValueError:
+            parsed = ()
+        if not sep or not parsed:
+            raise ValueError(f"--grid {item!r}: expected NAME=VALUE,VALUE,... with NAME one of "
+                             f"{list(SWEEPABLE)} and numeric values")
+        grid.append((name.strip(), parsed))
+    return tuple(grid)
+
+
+def _rows(sweep: SweepSpec) -> tuple[dict[str, jax.Array], list[str]]:
+    """``TrainState.hparams`` of every row (point-major, then seed) and the rows' names."""
+    points, seeds = sweep.points(), sweep.base.seeds
+    hp = {k: jnp.asarray([getattr(spec.ppo, k) for _, spec in points for _ in seeds],
+                         jnp.float32) for k, _ in sweep.grid}
+    return hp, [f"{name} seed {s}" for name, _ in points for s in seeds]
+
+
+class _SweepLog:
+    """The points' run logs (no bars of their own) behind the one interface of
+    :class:`agents.run.training._RunLog`, with one progress bar for the sweep."""
+
+    def __init__(self, logs: list[_RunLog], num_seeds: int, bar: ProgressBar | None,
+                 steps_per_iteration: int):
+        self.logs, self.n, self.bar, self.steps = logs, num_seeds, bar, steps_per_iteration
+
+    @property
+    def history(self) -> dict[str, np.ndarray]:
+        """Every point's history stacked along the row axis ({} before the first chunk)."""
+        if not self.logs[0].history:
+            return {}
+        return {k: np.concatenate([log.history[k] for log in self.logs])
+                for k in self.logs[0].history}
+
+    def append(self, metrics: dict[str, np.ndarray], start: int, done: int,
+               seconds: float) -> None:
+        """Each point's rows to its log; the sweep's bar."""
+        for i, log in enumerate(self.logs):
+            log.append({k: v[i * self.n:(i + 1) * self.n] for k, v in metrics.items()},
+                       start, done, seconds)
+        if self.bar is not None:
+            rate = (done - start) * self.steps * self.n * len(self.logs) / seconds
+            self.bar.update(done, summary_line(self.history, rate, window=done - start))
+
+    def close_bar(self) -> None:
+        """End the progress bar's line."""
+        if self.bar is not None:
+            self.bar.close()
+
+    def close(self) -> None:
+        """Close every point's TensorBoard writer."""
+        for log in self.logs:
+            log.close()
+
+
+class _SweepSaver:
+    """Each point's rows of the state (without ``hparams``) checkpointed in its directory."""
+
+    def __init__(self, savers: list[_Saver], num_seeds: int):
+        self.savers, self.n = savers, num_seeds
+        self.ckpt_dir = savers[0].ckpt_dir
+
+    def save(self, at: int, state: TrainState, history: dict[str, np.ndarray]) -> None:
+        """Checkpoint every point as iteration ``at``."""
+        state = state._replace(hparams=None)
+        for i, saver in enumerate(self.savers):
+            rows = slice(i * self.n, (i + 1) * self.n)
+            saver.save(at, jax.tree.map(lambda x, r=rows: x[r], state),
+                       {k: v[rows] for k, v in history.items()})
+
+
+def _initial_state(program: Program, sweep: SweepSpec, dirs: list[str], resume: bool
+                   ) -> tuple[TrainState, list[dict[str, np.ndarray]], int]:
+    """The stacked state of every row (fresh, or each point's newest checkpoint, which must
+    match the point's identity and all be at the same iteration), the points' histories and
+    the iterations done."""
+    keys = seed_keys(sweep.base.seeds)
+    hp, _ = _rows(sweep)
+    if not resume:
+        state = program.initial_state(jnp.concatenate([keys] * len(dirs)))
+        return state._replace(hparams=hp), [{} for _ in dirs], 0
+    template = jax.eval_shape(program.init, keys)
+    states, histories, done = [], [], set()
+    for d, (_, spec) in zip(dirs, sweep.points(), strict=True):
+        state, meta = checkpoint.restore(os.path.join(d, "checkpoints"), template,
+                                         expected=spec.identity())
+        states.append(state)
+        histories.append(_history_from_json(meta["history"]))
+        done.add(int(meta["iteration"]))
+    if len(done) != 1:
+        raise ValueError(f"the sweep's points were checkpointed at different iterations "
+                         f"{sorted(done)}; resume each point with scripts/train.py --resume or "
+                         "start the sweep again")
+    state = jax.tree.map(lambda *xs: jnp.concatenate(xs), *states)
+    return state._replace(hparams=hp), histories, done.pop()
+
+
+def final_table(sweep: SweepSpec, histories: list[dict[str, np.ndarray]]) -> list[dict]:
+    """One row per point: its values and, over its seeds (mean, std), the last iteration's mean
+    step reward and the final mean episode return, safe % and success % (trailing ≥ 100
+    episodes, :func:`episode_window`; NaN before any episode has finished)."""
+    rows = []
+    for (name, spec), hist in zip(sweep.points(), histories, strict=True):
+        row: dict[str, Any] = {"point": name, **{k: getattr(spec.ppo, k) for k, _ in sweep.grid}}
+        last = hist["mean_reward"][:, -1] if hist else np.full(1, np.nan)
+        row["mean_reward"], row["mean_reward_std"] = float(np.mean(last)), float(np.std(last))
+        for key, scale in (("mean_episode_return", 1.0), ("safe_fraction", 100.0),
+                           ("success_fraction", 100.0)):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                final = episode_window(hist, key)[:, -1] * scale if hist else np.full(1, np.nan)
+                row[key], row[f"{key}_std"] = float(np.nanmean(final)), float(np.nanstd(final))
+        rows.append(row)
+    return rows
+
+
+def _write_outputs(sweep: SweepSpec, out_dir: str, histories: list[dict[str, np.ndarray]]
+                   ) -> None:
+    """``sweep.csv`` and ``sweep_curves.png`` (mean episode return per point over iterations,
+    mean over seeds)."""
+    rows = final_table(sweep, histories)
+    cols = list(rows[0])
+    text = ",".join(cols) + "\n" + "".join(
+        ",".join(f"{r[c]:.6g}" if isinstance(r[c], float) else str(r[c]).replace(",", ";")
+                 for c in cols) + "\n" for r in rows)
+    atomic_write(os.path.join(out_dir, "sweep.csv"), text.encode())
+    import matplotlib  # lazy: optional dependency (the "plots" extra)
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # lazy: optional dependency (after the backend is set)
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for (name, _), hist in zip(sweep.points(), histories, strict=True):
+        if hist:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                curve = np.nanmean(episode_window(hist, "mean_episode_return"), axis=0)
+            ax.plot(np.arange(1, curve.size + 1), curve, lw=1.3, label=name)
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("mean episode return (mean over seeds)")
+    ax.set_title(f"{sweep.base.policy} on {sweep.base.env}: sweep")
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    path = os.path.join(out_dir, "sweep_curves.png")
+    fig.savefig(path + ".tmp.png", dpi=110)
+    plt.close(fig)
+    os.replace(path + ".tmp.png", path)
+
+
+def run_sweep(sweep: SweepSpec, out_dir: str, resume: bool = False, progress: bool = True,
+              stream: IO[str] | None = None) -> RunResult:
+    """Train every point × seed of ``sweep`` in one program into ``out_dir`` (see the module
+    docstring) under the directory's lock. The result's history and state are every row's
+    (point-major, then seed)."""
+    if not resume:
+        os.makedirs(out_dir, exist_ok=True)
+    elif not os.path.isdir(out_dir):
+        raise FileNotFoundError(f"resume=True but {out_dir} does not exist (no sweep to resume)")
+    points = sweep.points()
+    dirs = [os.path.join(out_dir, name) for name, _ in points]
+    with lock_run_directory(out_dir):
+        for d in dirs:
+            os.makedirs(d, exist_ok=True)
+        ckpt_dirs = [_check_dir(d, resume) for d in dirs]
+        program = build(points[0][1])
+        compile_before = program.compile_seconds
+        state, histories, done = _initial_state(program, sweep, dirs, resume)
+        atomic_write(os.path.join(out_dir, "sweep.json"),
+                     json.dumps(sweep.to_json(), indent=1).encode())
+        logs = []
+        for d, (_, spec), hist in zip(dirs, points, histories, strict=True):
+            _write_spec(spec, d)
+            logs.append(_RunLog(spec, d, hist, None))
+        base = sweep.base
+        total = base.ppo.total_iterations
+        log = _SweepLog(logs, len(base.seeds), ProgressBar(total, stream) if progress else None,
+                        base.ppo.batch_size)
+        saver = _SweepSaver([_Saver(s, c, done) for (_, s), c in zip(points, ckpt_dirs,
+                                                                     strict=True)],
+                            len(base.seeds))
+        try:
+            state, done, train_s = _train_chunks(program, base, state, done, log, saver,
+                                                 _rows(sweep)[1])
+        finally:
+            for d, (_, spec), run_log in zip(dirs, points, logs, strict=True):
+                if run_log.history:
+                    _plot(program, spec, run_log.history, d)
+            _write_outputs(sweep, out_dir, [run_log.history for run_log in logs])
+    steps = done * base.ppo.batch_size * len(base.seeds) * len(points) if log.history else 0
+    return RunResult(log.history, state, program.trainer,
+                     program.compile_seconds - compile_before, train_s, steps)
+
+
+__all__ = ["SweepSpec", "final_table", "parse_grid", "run_sweep"]

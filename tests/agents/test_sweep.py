@@ -1,0 +1,103 @@
+"""Packed sweeps (agents.run.sweep): one program trains a grid of hyper-parameters × seeds and
+each point equals its separate run up to float32 rounding; a resumed sweep equals the
+uninterrupted one; every point's directory is an ordinary run directory."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+
+from agents.ppo.hparams import SWEEPABLE, resolve
+from agents.run.loading import load_run
+from agents.run.spec import RunSpec, preset
+from agents.run.sweep import SweepSpec, parse_grid, run_sweep
+from agents.run.training import run_training
+
+#: Every sweepable name is set away from its default (so each is data in the sweep); two points
+#: differ in the learning rate.
+GRID = (("learning_rate", (3e-4, 1e-3)), ("ent_coef", (0.01,)), ("clip_eps", (0.15,)),
+        ("vf_coef", (0.7,)), ("gamma", (0.97,)), ("gae_lambda", (0.9,)))
+BASE = RunSpec(env="three_link/env3", policy="nn", seeds=(0, 3),
+               ppo=preset("cpu", num_envs=8, rollout_length=16, num_minibatches=2,
+                          update_epochs=2, total_iterations=4),
+               log_every=2, checkpoint_every=2)
+
+
+@pytest.fixture(scope="module")
+def sweep_dir(tmp_path_factory):
+    out = str(tmp_path_factory.mktemp("sweep"))
+    result = run_sweep(SweepSpec(BASE, GRID), out, progress=False)
+    return out, result
+
+
+def _params(state):
+    return [np.asarray(x) for x in jax.tree.leaves(state.params)]
+
+
+def test_grid_names_every_sweepable_value():
+    assert {name for name, _ in GRID} == set(SWEEPABLE)
+    names = [name for name, _ in SweepSpec(BASE, GRID).points()]
+    assert len(names) == 2 and names[0].startswith("learning_rate=0.0003,ent_coef=0.01")
+
+
+def test_each_point_equals_its_separate_run(sweep_dir, tmp_path):
+    """acceptance 1: the sweep's rows (point-major, then seed) against the separate runs of the
+    points' specs (their values as constants), to float32 rounding."""
+    _, result = sweep_dir
+    points = SweepSpec(BASE, GRID).points()
+    for i, (_, spec) in enumerate(points):
+        alone = run_training(spec, str(tmp_path / f"p{i}"), progress=False)
+        rows = slice(2 * i, 2 * i + 2)
+        for a, b in zip(_params(alone.state), _params(result.state), strict=True):
+            np.testing.assert_allclose(b[rows], a, rtol=2e-4, atol=2e-6)
+        for k in ("mean_reward", "loss", "approx_kl"):
+            np.testing.assert_allclose(result.history[k][rows], alone.history[k],
+                                       rtol=2e-3, atol=1e-6)
+    # the two learning rates really differ: the points' parameters are not the same
+    p = _params(result.state)
+    assert max(np.abs(x[0] - x[2]).max() for x in p) > 1e-5
+
+
+def test_resumed_sweep_equals_the_uninterrupted_one(sweep_dir, tmp_path):
+    _, full = sweep_dir
+    half = dataclasses.replace(BASE, ppo=dataclasses.replace(BASE.ppo, total_iterations=2))
+    out = str(tmp_path / "resumed")
+    run_sweep(SweepSpec(half, GRID), out, progress=False)
+    resumed = run_sweep(SweepSpec(BASE, GRID), out, resume=True, progress=False)
+    for a, b in zip(_params(full.state), _params(resumed.state), strict=True):
+        np.testing.assert_array_equal(a, b)
+    for k, v in full.history.items():
+        np.testing.assert_array_equal(resumed.history[k], v)
+
+
+def test_points_are_ordinary_run_directories(sweep_dir):
+    out, result = sweep_dir
+    with open(f"{out}/sweep.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert [float(r["learning_rate"]) for r in rows] == [3e-4, 1e-3]
+    assert all(np.isfinite(float(r["mean_reward"])) for r in rows)
+    assert {"mean_episode_return", "safe_fraction", "success_fraction"} <= set(rows[0])
+    for i, (name, spec) in enumerate(SweepSpec(BASE, GRID).points()):
+        run = load_run(f"{out}/{name}")
+        assert run.spec == spec and run.state.hparams is None
+        for a, b in zip(_params(run.state), _params(result.state), strict=True):
+            np.testing.assert_array_equal(a, b[2 * i:2 * i + 2])
+
+
+def test_bad_grids_are_refused():
+    with pytest.raises(ValueError, match="num_envs"):
+        SweepSpec(BASE, (("num_envs", (8.0, 16.0)),))
+    with pytest.raises(ValueError, match="distinct"):
+        SweepSpec(BASE, (("learning_rate", (1e-3, 1e-3)),))
+    with pytest.raises(ValueError, match="clip_eps"):
+        SweepSpec(BASE, (("clip_eps", (0.0,)),))
+    with pytest.raises(ValueError, match="--grid 'gamma'"):
+        parse_grid(["gamma"])
+    with pytest.raises(ValueError, match="unknown names"):
+        resolve(BASE.ppo, {"lr": 1.0})
+    with pytest.raises(FileNotFoundError):
+        run_sweep(SweepSpec(BASE, GRID), "/nonexistent/sweep", resume=True)
