@@ -72,11 +72,11 @@ def measure_env(env_name: str, policy: str, batch: int, steps: int, repeats: int
 
 
 def measure_ppo(env_name: str, policy: str, devices: int, iterations: int, seeds: int,
-                preset_name: str, num_envs: int | None = None) -> dict:
+                preset_name: str, num_envs: int | None = None, split: bool = True) -> dict:
     """PPO training throughput: environment steps/s of a compiled chunk of ``iterations``
     iterations for ``seeds`` vmapped seeds, the environment batch sharded over ``devices``
-    devices (after a warm-up chunk); compile time; on one device also the per-iteration split
-    (:func:`agents.run.program.profile_iteration`)."""
+    devices (after a warm-up chunk); compile time; on one device and with ``split`` also the
+    per-iteration split (:func:`agents.run.program.profile_iteration`)."""
     overrides = {} if num_envs is None else {"num_envs": num_envs}
     spec = RunSpec(env=env_name, policy=policy, seeds=tuple(range(seeds)),
                    ppo=preset(preset_name, **overrides))
@@ -93,7 +93,7 @@ def measure_ppo(env_name: str, policy: str, devices: int, iterations: int, seeds
            "env_steps": steps,
            "seconds": dt, "steps_per_s": steps / dt, "iteration_s": dt / iterations,
            "compile_s": program.compile_seconds}
-    if devices == 1:
+    if devices == 1 and split:
         row["iteration_split_s"] = profile_iteration(program, state)
     return row
 

@@ -8,6 +8,7 @@
 * :mod:`agents.ppo.state` — the train state and transitions;
 * :mod:`agents.ppo.rollout` — acting in the batched environments;
 * :mod:`agents.ppo.update` — the SGD epochs of one iteration;
+* :mod:`agents.ppo.hparams` — scalar hyper-parameters as per-run data (packed sweeps);
 * :mod:`agents.ppo.sharding` — data parallelism over a device mesh;
 * :mod:`agents.ppo.train` — ``make_train(env, policy, config) -> train(key)`` and
   ``make_trainer`` for chunked or sharded runs.
@@ -15,6 +16,7 @@
 
 from agents.ppo import (
     config,
+    hparams,
     losses,
     networks,
     normalization,
@@ -47,6 +49,7 @@ __all__ = [
     "gae",
     "gaussian_entropy",
     "gaussian_log_prob",
+    "hparams",
     "losses",
     "make_env_and_policy",
     "make_mesh",

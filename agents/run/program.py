@@ -45,7 +45,9 @@ class Program:
         """The compiled ``run(·, n)`` (compiled on first use, from the exported program of an
         earlier process where there is one: :func:`agents.run.program_cache.exported`; the time
         is added to ``compile_seconds``)."""
-        key = (n, jax.tree.structure(state))  # a sweep's state also carries hparams
+        # a sweep's state also carries hparams; seeds or sweep rows change the shapes
+        key = (n, jax.tree.structure(state),
+               tuple((x.shape, str(x.dtype)) for x in jax.tree.leaves(state)))
         if key not in self.executables:
             t0 = time.perf_counter()
             self.executables[key] = self._from_artifact(

@@ -175,16 +175,24 @@ class _SweepSaver:
                        {k: v[rows] for k, v in history.items()})
 
 
+def initial_rows(program: Program, sweep: SweepSpec) -> TrainState:
+    """The fresh stacked state of every row of ``sweep`` (point-major, then seed), each row with
+    its hyper-parameters, for ``program`` (:func:`agents.run.program.build` of the first
+    point)."""
+    keys = seed_keys(sweep.base.seeds)
+    state = program.initial_state(jnp.concatenate([keys] * len(sweep.points())))
+    return state._replace(hparams=_rows(sweep)[0])
+
+
 def _initial_state(program: Program, sweep: SweepSpec, dirs: list[str], resume: bool
                    ) -> tuple[TrainState, list[dict[str, np.ndarray]], int]:
     """The stacked state of every row (fresh, or each point's newest checkpoint, which must
     match the point's identity and all be at the same iteration), the points' histories and
     the iterations done."""
+    if not resume:
+        return initial_rows(program, sweep), [{} for _ in dirs], 0
     keys = seed_keys(sweep.base.seeds)
     hp, _ = _rows(sweep)
-    if not resume:
-        state = program.initial_state(jnp.concatenate([keys] * len(dirs)))
-        return state._replace(hparams=hp), [{} for _ in dirs], 0
     template = jax.eval_shape(program.init, keys)
     states, histories, done = [], [], set()
     for d, (_, spec) in zip(dirs, sweep.points(), strict=True):
@@ -298,4 +306,4 @@ def run_sweep(sweep: SweepSpec, out_dir: str, resume: bool = False, progress: bo
                      program.compile_seconds - compile_before, train_s, steps)
 
 
-__all__ = ["SweepSpec", "final_table", "parse_grid", "run_sweep"]
+__all__ = ["SweepSpec", "final_table", "initial_rows", "parse_grid", "run_sweep"]
