@@ -7,16 +7,18 @@ Usage::
         [--platforms cpu cuda] [--matmul-precision highest] [--force]
     python scripts/export.py --env three_link/env3 --policy rmp_residual \\
         --out exported/untrained.jaxexport [--seed 0]
+    python scripts/export.py --hand-designed --env franka --out exported/franka_hd.jaxexport
     python scripts/export.py --skill results/lfd_lasa/skills/Angle --out exported/angle.jaxexport
 
 The first form exports a trained policy: the newest (or ``--step``) checkpoint of a run
 directory written by ``scripts/train.py``, one training seed, with its observation statistics
-baked in (:func:`agents.run.loading.deterministic_policy`). The second exports a freshly initialised
-policy of that kind (``params = module.init(PRNGKey(seed), zeros(obs_size))``). The export
-itself is :func:`agents.run.export.export_run`. The third exports a saved LfD skill's velocity
-``x (b, dim) → ẋ (b, dim)`` (``scripts/lfd_lasa.py --save-skills``; :func:`agents.lfd.skills.
-export_skill`, full float32 matrix products unless ``--matmul-precision`` says otherwise). Load
-the result with ``scripts/load_policy.py``.
+baked in (:func:`agents.run.loading.deterministic_policy`). The second exports a freshly
+initialised policy of that kind (``params = module.init(PRNGKey(seed), zeros(obs_size))``); the
+third the hand-designed RMP² policy (kind ``hand_designed``: nothing learned in its mean). The
+export itself is :func:`agents.run.export.export_run`. The fourth exports a saved LfD skill's
+velocity ``x (b, dim) → ẋ (b, dim)`` (``scripts/lfd_lasa.py --save-skills``;
+:func:`agents.lfd.skills.export_skill`, full float32 matrix products unless
+``--matmul-precision`` says otherwise). Load the result with ``scripts/load_policy.py``.
 
 An existing ``--out`` (or its ``.json`` manifest) is not overwritten without ``--force``; a
 corrupt checkpoint (the newest intact one is used unless ``--step`` names it) and NaN/inf
@@ -56,6 +58,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--env", default=None, choices=EXPORTABLE_ENVS,
                         help="environment name (an untrained policy; not with --checkpoint)")
     parser.add_argument("--policy", default=None, choices=list(KINDS), help="policy kind")
+    parser.add_argument("--hand-designed", action="store_true",
+                        help="export the hand-designed RMP² policy of --env "
+                             "(the same as --policy hand_designed)")
     parser.add_argument("--out", required=True, type=Path, help="output file (.jaxexport)")
     parser.add_argument("--seed", type=int, default=0, help="initialisation seed")
     parser.add_argument("--platforms", nargs="+", default=["cpu", "cuda"],
@@ -65,6 +70,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--force", action="store_true",
                         help="overwrite an existing --out file and its .json manifest")
     args = parser.parse_args(argv)
+    if args.hand_designed:
+        if args.policy not in (None, "hand_designed"):
+            parser.error(f"--hand-designed exports the hand_designed policy, not --policy "
+                         f"{args.policy}")
+        args.policy = "hand_designed"
     sources = [args.checkpoint, args.skill, args.env or args.policy]
     if sum(s is not None for s in sources) > 1:
         parser.error("give one of --checkpoint RUN_DIR, --skill SKILL_DIR or --env/--policy")

@@ -21,7 +21,10 @@ policy is never exported. :func:`export_run` refuses to overwrite an existing bl
 unless ``force=True`` (``scripts/export.py --force``).
 
 Load either with ``scripts/load_policy.py`` (standalone: ``jax``, ``numpy`` and the standard
-library only) or with ``jax.export.deserialize`` directly.
+library only), with :func:`load_export` inside the project, or with ``jax.export.deserialize``
+directly. The hand-designed RMP² policy exports the same way (policy kind ``hand_designed``:
+``scripts/export.py --hand-designed --env ENV``); it, like every kind with an RMP² part, reads
+its RMP² inputs from the observation alone (manifest ``metadata.rmp_inputs``).
 
 The module is lowered for several platforms at once (default ``("cpu", "cuda")``; lowering for
 CUDA needs no GPU). Where lowering for a requested platform fails, the platforms that do lower
@@ -66,6 +69,12 @@ SUFFIX = ".jaxexport"
 KNOWN_PLATFORMS = ("cpu", "cuda", "rocm", "tpu")
 #: Values of ``matmul_precision`` (those of ``jax.default_matmul_precision``).
 MATMUL_PRECISIONS = ("default", "high", "highest", "bfloat16", "tensorfloat32", "float32")
+#: Policy kinds whose RMP² part reads its inputs decoded from the observation.
+RMP_KINDS = ("hand_designed", "nn_residual", "rmp_residual")
+#: How those kinds decode the RMP² inputs (manifest ``metadata.rmp_inputs``): the observation
+#: alone determines them (:func:`agents.ppo.policies.decode_observation`).
+RMP_INPUTS = ("q = atan2(sin_q, cos_q); qd = qd; goal = goal_minus_x + FK(q); obstacles = "
+              "(centre, radius) rows of 'obstacles', active where radius > 0")
 #: Environments the policy classes support: the reaching environments (not ``point2d``).
 EXPORTABLE_ENVS = tuple(sorted(
     name for name, factory in envs.ENVIRONMENTS.items()
@@ -281,8 +290,9 @@ def export_from_params(env_name: str, kind: str, params: Any, out: str | os.Path
     ``apply_fn(params, obs) -> mean`` defaults to the module's mean on the raw observation;
     pass :func:`agents.run.loading.deterministic_policy`'s pair for a checkpoint (observation
     statistics included). The manifest's ``metadata`` holds ``env``, ``policy``, ``robot``,
-    ``observation_layout`` (``{name: [start, stop]}``) and ``action`` (what the action means),
-    updated with ``metadata`` (e.g. ``iteration``, ``seed``, ``checkpoint``). ``platforms`` and
+    ``observation_layout`` (``{name: [start, stop]}``), ``action`` (what the action means)
+    and, for kinds with an RMP² part (:data:`RMP_KINDS`), ``rmp_inputs``, updated with
+    ``metadata`` (e.g. ``iteration``, ``seed``, ``checkpoint``). ``platforms`` and
     ``matmul_precision`` go to :func:`export_policy`. Returns the manifest.
     """
     check_names(env_name, kind)
@@ -298,6 +308,8 @@ def export_from_params(env_name: str, kind: str, params: Any, out: str | os.Path
                    if kind == "rmp_residual_env"
                    else "joint-acceleration mean (unclipped; the environment clips)"),
     }
+    if kind in RMP_KINDS:
+        meta["rmp_inputs"] = RMP_INPUTS
     meta.update(metadata or {})
     if apply_fn is None:
         def apply_fn(p, o):
@@ -336,6 +348,35 @@ def export_run(out: str | os.PathLike, checkpoint: str | os.PathLike | None = No
                               matmul_precision=matmul_precision, apply_fn=apply_fn)
 
 
+def load_export(path: str | os.PathLike) -> tuple[jax_export.Exported, dict]:
+    """``(exported, manifest)`` of the blob ``path`` written by :func:`export_policy`, checked as
+    ``scripts/load_policy.py`` checks it (that script is standalone by design):
+    ``FileNotFoundError`` for a missing blob or manifest, ``ValueError`` naming the file for a
+    foreign manifest, a SHA-256 mismatch or input/output shapes unlike the manifest's."""
+    path = Path(path)
+    if path.suffix != SUFFIX:
+        raise ValueError(f"policy path must end in {SUFFIX!r}, got {str(path)!r}")
+    for p in (path, manifest_path(path)):
+        if not p.is_file():
+            raise FileNotFoundError(f"exported policy file {str(p)!r} not found")
+    try:
+        manifest = json.loads(manifest_path(path).read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"manifest {str(manifest_path(path))!r} is not valid JSON: {e}") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+        raise ValueError(f"manifest {str(manifest_path(path))!r} is not a {FORMAT!r} manifest")
+    blob = path.read_bytes()
+    if hashlib.sha256(blob).hexdigest() != manifest.get("sha256"):
+        raise ValueError(f"{str(path)!r} does not match its manifest's sha256 (corrupted?)")
+    exported = jax_export.deserialize(bytearray(blob))
+    shapes = ([tuple(a.shape[1:]) for a in exported.in_avals],
+              [tuple(a.shape[1:]) for a in exported.out_avals])
+    if shapes != ([(manifest.get("obs_size"),)], [(manifest.get("action_size"),)]):
+        raise ValueError(f"{str(path)!r}: exported shapes {shapes} differ from the manifest's "
+                         f"obs_size/action_size")
+    return exported, manifest
+
+
 __all__ = ["EXPORTABLE_ENVS", "FORMAT", "FORMAT_VERSION", "KNOWN_PLATFORMS", "MATMUL_PRECISIONS",
-           "SUFFIX", "check_names", "export_from_params", "export_policy", "export_run",
-           "init_params", "manifest_path"]
+           "RMP_INPUTS", "RMP_KINDS", "SUFFIX", "check_names", "export_from_params",
+           "export_policy", "export_run", "init_params", "load_export", "manifest_path"]

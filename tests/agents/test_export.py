@@ -27,13 +27,17 @@ import pytest
 
 import envs
 from agents.ppo import make_policy
+from agents.ppo.policies import ObservationSpec, hand_designed_mean
 from agents.run.export import (
+    RMP_INPUTS,
     check_names,
     export_from_params,
     export_policy,
     init_params,
+    load_export,
     manifest_path,
 )
+from mjxrmp.policies import default_config
 
 REPO = Path(__file__).resolve().parents[2]
 LOADER = REPO / "scripts" / "load_policy.py"
@@ -276,3 +280,31 @@ def test_export_from_params_and_cli(tmp_path):
     proc = subprocess.run([sys.executable, script, "--out", str(tmp_path / "d.jaxexport")],
                           env=_subprocess_env(), capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2 and "--checkpoint RUN_DIR" in proc.stderr
+
+
+def test_hand_designed_export_and_load_export(tmp_path):
+    """``scripts/export.py --hand-designed`` exports the hand-designed RMP² policy (a function of
+    the observation alone, documented in the manifest); :func:`load_export` reads it back and
+    refuses a corrupted blob and a missing manifest, naming the file."""
+    out = tmp_path / "hd.jaxexport"
+    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "export.py"), "--hand-designed",
+                           "--env", ENV, "--out", str(out), "--platforms", "cpu"],
+                          env=_subprocess_env(), capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    exported, manifest = load_export(out)
+    meta = manifest["metadata"]
+    assert (meta["policy"], meta["rmp_inputs"], manifest["action_size"]) == (
+        "hand_designed", RMP_INPUTS, 3)
+    env = envs.make(ENV)
+    obs = _observations(env, 5)
+    expected = hand_designed_mean(ObservationSpec.from_env(env), default_config("three_link"),
+                                  jnp.asarray(obs))
+    np.testing.assert_allclose(exported.call(obs), expected, **TOL)
+    bad = tmp_path / "bad.jaxexport"
+    bad.write_bytes(out.read_bytes()[:-1] + b"x")
+    shutil.copy(manifest_path(out), manifest_path(bad))
+    with pytest.raises(ValueError, match=r"bad\.jaxexport.*sha256"):
+        load_export(bad)
+    manifest_path(bad).unlink()
+    with pytest.raises(FileNotFoundError, match=r"bad\.json"):
+        load_export(bad)
