@@ -132,8 +132,9 @@ class ReachEnv(Env):
         self.substep_unroll = substep_unroll(self.substeps, unroll_substeps)
         self.mj_model = set_constraint_stages(mujoco.MjModel.from_xml_string(xml),
                                               self.constraint_stages)
-        self.mjx_model = mjx.put_model(self.mj_model)
-        self._data0 = mjx.make_data(self.mjx_model)
+        # this process's first device: in a multi-process run jax.devices()[0] is process 0's
+        self.mjx_model = mjx.put_model(self.mj_model, device=jax.local_devices()[0])
+        self._data0 = mjx.make_data(self.mjx_model, device=jax.local_devices()[0])
         self.sim_dt = float(self.mj_model.opt.timestep)
         self.dt = self.sim_dt * self.substeps
         self.goal_sigma = goal_sigma

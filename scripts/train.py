@@ -23,6 +23,11 @@ Examples::
 every seed in one compiled program (:mod:`agents.run.sweep`), into ``--out`` (default
 ``runs/sweep_<env>_<policy>``) with one ordinary run directory per point, ``sweep.csv`` and
 ``sweep_curves.png``.
+
+Multi-process (multi-host) training (docs/multihost.md): run the same command in every process
+with ``--coordinator HOST:PORT --num-processes N --process-id I`` (or ``--distributed`` to take
+them from ``MJXRMP_COORDINATOR``/``MJXRMP_NUM_PROCESSES``/``MJXRMP_PROCESS_ID`` or the cluster's
+environment, e.g. SLURM); the environment batch is sharded over every device of every process.
 """
 
 from __future__ import annotations
@@ -37,11 +42,10 @@ from mjxrmp import _xla
 
 _xla.configure_script()
 
-import jax  # noqa: E402
-
 import envs  # noqa: E402
 from agents.ppo import KINDS, make_mesh  # noqa: E402
 from agents.ppo.hparams import SWEEPABLE  # noqa: E402
+from agents.run.distributed import initialize, mesh_devices  # noqa: E402
 from agents.run.spec import PRESETS, RunSpec, parse_overrides, preset  # noqa: E402
 from agents.run.sweep import SweepSpec, parse_grid, run_sweep  # noqa: E402
 from agents.run.training import (  # noqa: E402
@@ -52,9 +56,8 @@ from agents.run.training import (  # noqa: E402
 from mjxrmp.divergence import EXIT_DIVERGED, DivergenceError  # noqa: E402
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Parse the arguments into a :class:`agents.run.spec.RunSpec`, train it
-    (:func:`agents.run.training.run_training`) and print the summary; the exit status."""
+def _parser() -> argparse.ArgumentParser:
+    """The command line's arguments."""
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--env", default="three_link/env3",
                    help=f"environment; one of {sorted(envs.ENVIRONMENTS)}")
@@ -76,11 +79,25 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--devices", type=int, default=None,
                    help="shard the environment batch over this many devices")
     p.add_argument("--distributed", action="store_true",
-                   help="call jax.distributed.initialize() first (multi-host runs)")
+                   help="multi-process run: connect the processes with jax.distributed (the "
+                        "flags below, MJXRMP_* variables or the cluster's, e.g. SLURM)")
+    p.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                   help="multi-process run: address of process 0's coordinator service")
+    p.add_argument("--num-processes", type=int, default=None,
+                   help="multi-process run: number of processes")
+    p.add_argument("--process-id", type=int, default=None,
+                   help="multi-process run: this process's id (0 writes the run directory)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--grid", action="append", default=[], metavar="NAME=V1,V2,...",
                    help=f"sweep a hyper-parameter (repeatable; one of {list(SWEEPABLE)}): all "
                         "points × seeds train in one program")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Parse the arguments into a :class:`agents.run.spec.RunSpec`, train it
+    (:func:`agents.run.training.run_training`) and print the summary; the exit status."""
+    p = _parser()
     args = p.parse_args(argv)
 
     if args.env not in envs.ENVIRONMENTS:
@@ -89,9 +106,11 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"unknown --policy {args.policy!r}; valid kinds are {list(KINDS)}")
     if args.preset not in PRESETS:
         p.error(f"unknown --preset {args.preset!r}; valid presets are {sorted(PRESETS)}")
-    if args.distributed:
-        jax.distributed.initialize()
     try:
+        if args.distributed or (args.coordinator, args.num_processes, args.process_id) != (
+                None, None, None):
+            initialize(args.coordinator, args.num_processes, args.process_id)
+        devices = mesh_devices(args.devices)
         overrides = parse_overrides(args.set)
         if args.iterations is not None:
             overrides["total_iterations"] = args.iterations
@@ -102,8 +121,8 @@ def main(argv: list[str] | None = None) -> int:
         sweep = SweepSpec(spec, parse_grid(args.grid)) if args.grid else None
     except (TypeError, ValueError) as e:
         p.error(str(e))
-    if sweep is not None and (args.devices or 1) > 1:
-        p.error("--grid runs on one device; leave out --devices")
+    if sweep is not None and (devices or 1) > 1:
+        p.error("--grid runs on one device and one process; leave out --devices")
     stem = f"{args.env.replace('/', '-')}_{args.policy}"
     out = args.out or os.path.join("runs", f"sweep_{stem}" if sweep else stem)
     print(f"training {spec.policy} on {spec.env}, seeds {list(spec.seeds)}, preset "
@@ -116,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
         result = (run_sweep(sweep, out, resume=args.resume, progress=not args.no_progress)
                   if sweep is not None else
                   run_training(spec, out, resume=args.resume, progress=not args.no_progress,
-                               mesh=make_mesh(args.devices)))
+                               mesh=make_mesh(devices)))
     except (FileExistsError, FileNotFoundError, ValueError, RunDirectoryInUseError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

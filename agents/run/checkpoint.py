@@ -13,14 +13,15 @@ A checkpoint directory holds orbax steps (``<dir>/<iteration>/``), each with
   floating-point leaf of the state is finite.
 
 Reading a step verifies it first: no record, a missing, added, resized or changed file, or an
-orbax/tensorstore read error is a :class:`CorruptCheckpointError` naming the step directory and
-the reason in one line. "The latest" means the newest intact step (a corrupt newer one is skipped
-with ``warning: skipping checkpoint <path>: <reason>`` on stderr); an explicitly requested
-corrupt step raises. A NaN/inf leaf raises :class:`NonFiniteCheckpointError` naming it. **Legacy
-steps** (no record and no ``integrity`` key in their meta: saved before records existed) are
-accepted unverified with a one-line warning; a step whose meta promises a record it lacks (a
-save interrupted before the record) is corrupt. **Rotation** keeps the ``max_to_keep`` newest
-steps (``None``: all) and never deletes the newest verified finite one.
+orbax/tensorstore read error is a :class:`CorruptCheckpointError` naming the step directory and the
+reason in one line. "The latest" means the newest intact step (a corrupt newer one is skipped with
+``warning: skipping checkpoint <path>: <reason>`` on stderr); an explicitly requested corrupt step
+raises. A NaN/inf leaf raises :class:`NonFiniteCheckpointError` naming it. **Legacy steps** (no
+record and no ``integrity`` key in their meta: saved before records existed) are accepted
+unverified with a one-line warning; a step whose meta promises a record it lacks (a save
+interrupted before the record) is corrupt. **Rotation** keeps the ``max_to_keep`` newest steps
+(``None``: all) and never deletes the newest verified finite one. **Multi-process runs**
+(:mod:`agents.run.distributed`): process 0 alone saves; all restore on the host.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
+from agents.run.distributed import manager_options, restore_target
 from mjxrmp.atomic import atomic_write
 from mjxrmp.divergence import first_nonfinite_leaf
 
@@ -64,8 +66,9 @@ class NonFiniteCheckpointError(ValueError):
 
 
 def _manager(directory: str | os.PathLike, create: bool = True) -> ocp.CheckpointManager:
-    options = ocp.CheckpointManagerOptions(max_to_keep=None, create=create)
-    return ocp.CheckpointManager(os.path.abspath(os.fspath(directory)), options=options)
+    path = os.path.abspath(os.fspath(directory))
+    options = ocp.CheckpointManagerOptions(max_to_keep=None, **manager_options(path, create))
+    return ocp.CheckpointManager(path, options=options)
 
 
 def _step_dir(directory: str | os.PathLike, step: int) -> str:
@@ -364,9 +367,8 @@ def _restore_step(directory: str | os.PathLike, step: int, template: Any,
         check_compatible(meta, expected)
     leaves, treedef = jax.tree.flatten(template)
     _check_leaves(meta, [[list(x.shape), str(x.dtype)] for x in leaves])
-    abstract = {f"leaf_{i:05d}": jax.ShapeDtypeStruct(x.shape, x.dtype,
-                                                      sharding=getattr(x, "sharding", None))
-                for i, x in enumerate(leaves) if np.prod(x.shape) > 0}
+    abstract = {f"leaf_{i:05d}": restore_target(x) for i, x in enumerate(leaves)
+                if np.prod(x.shape) > 0}
     flat = _orbax_read(directory, step, "state", ocp.args.StandardRestore(abstract))
     out = [flat[f"leaf_{i:05d}"] if np.prod(x.shape) > 0 else jnp.zeros(x.shape, x.dtype)
            for i, x in enumerate(leaves)]

@@ -27,6 +27,14 @@ After every chunk the divergence guard checks the chunk's metrics
 parameters: on a non-finite value the run stops with :class:`DivergenceError` naming the
 iteration, seed and quantity; the logs and curves keep what was logged, the non-finite state is
 not checkpointed.
+
+**Multi-process runs** (:mod:`agents.run.distributed`, docs/multihost.md): every process trains
+into the same (shared) directory and computes every chunk; process 0 alone holds the lock and
+writes ``run.json``, the logs, the curves and the checkpoints (of the state gathered to its host)
+while the others wait at a barrier; a refusal (directory in use, no checkpoint to resume) stops
+every process. A checkpoint restores in any number of processes and devices (a sharded run
+restores on the host and places the arrays as a fresh state's). An interrupted multi-process run
+writes no checkpoint on the way out (resume from the last periodic one).
 """
 
 from __future__ import annotations
@@ -49,6 +57,7 @@ from jax.sharding import Mesh
 from agents.ppo import Trainer, TrainState
 from agents.run import checkpoint
 from agents.run.curves import plot_curves
+from agents.run.distributed import agree, barrier, is_multiprocess, is_writer, place, to_host
 from agents.run.logs import (
     ProgressBar,
     TensorBoard,
@@ -132,27 +141,31 @@ def _write_spec(spec: RunSpec, out_dir: str) -> None:
     atomic_write(os.path.join(out_dir, "run.json"), json.dumps(spec.to_json(), indent=1).encode())
 
 
-def _initial_state(program: Program, spec: RunSpec, ckpt_dir: str, resume: bool
-                   ) -> tuple[TrainState, dict[str, np.ndarray], int]:
+def _initial_state(program: Program, spec: RunSpec, ckpt_dir: str, resume: bool,
+                   sharded: bool) -> tuple[TrainState, dict[str, np.ndarray], int]:
     """``(state, history, iterations done)``: fresh, or the newest checkpoint (which must
-    match ``spec.identity()``)."""
+    match ``spec.identity()``; ``sharded``: placed on the devices as a fresh state is)."""
     keys = seed_keys(spec.seeds)
     if not resume:
         return program.initial_state(keys), {}, 0
     template = jax.eval_shape(program.init, keys)
     state, meta = checkpoint.restore(ckpt_dir, template, expected=spec.identity())
+    if sharded:  # written by any number of devices and processes, restored on the host
+        fresh = program.initial_state(keys)
+        state = place(state, jax.tree.map(lambda x: x.sharding, fresh))
     return state, _history_from_json(meta["history"]), int(meta["iteration"])
 
 
 class _RunLog:
-    """The run's metric history and its outputs: ``metrics.csv``, TensorBoard, progress."""
+    """The run's metric history and its outputs: ``metrics.csv``, TensorBoard, progress (only
+    the history on a process that does not write: :func:`agents.run.distributed.is_writer`)."""
 
     def __init__(self, spec: RunSpec, out_dir: str, history: dict[str, np.ndarray],
                  bar: ProgressBar | None):
         self.spec, self.history, self.bar = spec, history, bar
         self.csv_path = os.path.join(out_dir, "metrics.csv")
-        self.tb = TensorBoard(os.path.join(out_dir, "tb"))
-        if history:
+        self.tb = TensorBoard(os.path.join(out_dir, "tb")) if is_writer() else None
+        if history and self.tb is not None:
             write_csv(self.csv_path, history, spec.seeds, spec.ppo.batch_size)
 
     def append(self, metrics: dict[str, np.ndarray], start: int, done: int,
@@ -163,6 +176,8 @@ class _RunLog:
             self.history[k] = v if k not in self.history else np.concatenate(
                 [self.history[k], v], 1)
         batch = self.spec.ppo.batch_size
+        if self.tb is None:
+            return
         write_csv(self.csv_path, self.history, self.spec.seeds, batch)
         self.tb.write(self.history, start, self.spec.seeds, batch)
         if self.bar is not None:
@@ -176,11 +191,13 @@ class _RunLog:
 
     def close(self) -> None:
         """Close the TensorBoard writer."""
-        self.tb.close()
+        if self.tb is not None:
+            self.tb.close()
 
 
 class _Saver:
-    """Checkpoints of the run (each iteration count written once)."""
+    """Checkpoints of the run (each iteration count written once; by process 0 alone, of the
+    state gathered to its host, in a multi-process run)."""
 
     def __init__(self, spec: RunSpec, ckpt_dir: str, done: int):
         self.spec, self.ckpt_dir, self.saved = spec, ckpt_dir, done
@@ -191,7 +208,12 @@ class _Saver:
             return
         meta = dict(self.spec.identity(), iteration=at, history=_history_to_json(history),
                     run=self.spec.to_json())
-        checkpoint.save(self.ckpt_dir, at, state, meta, max_to_keep=self.spec.keep_checkpoints)
+        if is_multiprocess():
+            state = to_host(state)  # a collective: every process gathers
+        if is_writer():
+            checkpoint.save(self.ckpt_dir, at, state, meta,
+                            max_to_keep=self.spec.keep_checkpoints)
+        barrier(f"checkpoint {self.ckpt_dir} {at}")
         self.saved = at
 
 
@@ -238,10 +260,11 @@ def _train_chunks(program: Program, spec: RunSpec, state: TrainState, done: int,
             executable = program.executable(state, n)
             t0 = time.perf_counter()
             new_state, metrics = executable(state)
-            metrics = jax.tree.map(np.asarray, metrics)  # blocks until the chunk is done
+            metrics = to_host(metrics)  # blocks until the chunk is done
             dt = time.perf_counter() - t0
             train_s += dt
-            diverged = _divergence(runs, metrics, new_state.params, start)
+            params = to_host(new_state.params) if is_multiprocess() else new_state.params
+            diverged = _divergence(runs, metrics, params, start)
             if diverged is None:
                 state, done = new_state, start + n
             log.append(metrics, start, start + n, dt)
@@ -252,7 +275,7 @@ def _train_chunks(program: Program, spec: RunSpec, state: TrainState, done: int,
                 saver.save(done, state, log.history)
     except KeyboardInterrupt:
         log.close_bar()
-        if done > 0 and diverged is None:
+        if done > 0 and diverged is None and not is_multiprocess():
             saver.save(done, state, log.history)
             print(f"\ninterrupted: checkpoint of iteration {done} written to "
                   f"{saver.ckpt_dir}; continue with --resume", file=sys.stderr)
@@ -279,31 +302,43 @@ def run_training(spec: RunSpec, out_dir: str, resume: bool = False, progress: bo
                  mesh: Mesh | None = None, stream: IO[str] | None = None) -> RunResult:
     """Train ``spec`` into ``out_dir`` (see the module docstring) under the directory's lock;
     ``resume`` continues from the newest checkpoint there (refusing one of another
-    environment, policy or configuration before ``run.json`` is written)."""
+    environment, policy or configuration before ``run.json`` is written). In a multi-process
+    run every process calls this with the same arguments and a global ``mesh``; the result's
+    ``state`` then holds global arrays (:func:`agents.run.distributed.to_host` gathers them)."""
     if not resume:
         os.makedirs(out_dir, exist_ok=True)
     elif not os.path.isdir(out_dir):
         raise FileNotFoundError(f"resume=True but {out_dir} does not exist (no checkpoint to "
                                 "resume)")
-    # every process of a multi-host run trains into the same directory: the first one locks it
-    lock = lock_run_directory(out_dir) if jax.process_index() == 0 else contextlib.nullcontext()
-    with lock:
-        ckpt_dir = _check_dir(out_dir, resume)
+    # every process of a multi-host run trains into the same directory: process 0 locks it
+    with contextlib.ExitStack() as held:
+        refused = None
+        try:
+            if is_writer():
+                held.enter_context(lock_run_directory(out_dir))
+            ckpt_dir = _check_dir(out_dir, resume)
+        except (RunDirectoryInUseError, FileExistsError, FileNotFoundError) as e:
+            refused = e
+        agree(refused, f"training into {out_dir}")
         program = build(spec, mesh)
         compile_before = program.compile_seconds
-        state, history, done = _initial_state(program, spec, ckpt_dir, resume)
-        _write_spec(spec, out_dir)
-        total = spec.ppo.total_iterations
-        if done >= total:
+        state, history, done = _initial_state(program, spec, ckpt_dir, resume,
+                                              mesh is not None or is_multiprocess())
+        writer, total = is_writer(), spec.ppo.total_iterations
+        if writer:
+            _write_spec(spec, out_dir)
+        if done >= total and writer:
             print(f"run already has {done} >= {total} iterations", file=stream or sys.stderr)
-        log = _RunLog(spec, out_dir, history, ProgressBar(total, stream) if progress else None)
+        log = _RunLog(spec, out_dir, history,
+                      ProgressBar(total, stream) if progress and writer else None)
         try:
             state, done, train_s = _train_chunks(program, spec, state, done, log,
                                                  _Saver(spec, ckpt_dir, done))
         except DivergenceError:
-            _plot(program, spec, history, out_dir)
+            if writer:
+                _plot(program, spec, history, out_dir)
             raise
-        if history:
+        if history and writer:
             _plot(program, spec, history, out_dir)
     steps = done * spec.ppo.batch_size * len(spec.seeds) if history else 0
     return RunResult(history, state, program.trainer,
