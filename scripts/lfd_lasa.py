@@ -16,13 +16,21 @@ average) and trains nothing.
 
 Writes to ``--out`` (one folder: ``tar czf lasa.tgz -C DIR .``):
 
-* ``<shape>.npz`` — ``demos (7, T, 2)``, ``rollouts (7, T, 2)`` (the learned system from each
-  demonstration's first sample with the demonstrations' ``dt``, as many samples as the
-  demonstration), ``dt`` (scalar), ``losses`` (training loss per iteration);
-* ``metrics.json`` — per shape the trajectory metrics, the straight-line baseline, the training
-  summary, the converged end points and the convergence check; ``summary``: medians over shapes
-  with one row per shape (also printed as a table; :mod:`agents.lfd.lasa_summary`);
+* ``<shape>.npz`` — ``demos (7, T, 2)``, ``rollouts (7, K, 2)`` (the learned system from each
+  demonstration's first sample with the demonstrations' ``dt`` for ``K − 1 = ⌈1.2·(T − 1)⌉``
+  steps, i.e. over 1.2 × the demonstration's duration ``(T − 1)·dt``: 282 samples for
+  ``T = 235``), ``dt`` (scalar), ``losses`` (training loss per iteration). The arrival check
+  reads ``‖rollouts[:, -1]‖ < 0.01``; the first ``T`` samples are the reproduction compared with
+  the demonstration at equal times;
+* ``metrics.json`` — per shape the trajectory metrics (``rmse`` at equal times), the
+  straight-line baseline, the arrival check, the training summary, the converged end points and
+  the convergence check; ``summary``: medians over shapes with one row per shape (also printed
+  as a table; :mod:`agents.lfd.lasa_summary`);
 * ``<shape>_field.png`` and ``<shape>_potential.png`` (as Figs 4.4 and 4.7).
+
+``--study DIR`` also writes the study record ``DIR/summary.json`` and ``DIR/table.csv``
+(:func:`agents.lfd.lasa_summary.write_study`; ``results/lfd_lasa``, then
+``python scripts/report.py``).
 
 ``--save-skills DIR`` also saves each trained field as a reloadable, exportable skill
 ``DIR/<shape>/`` (:func:`agents.lfd.skills.save_lasa_skills`; ``scripts/export.py --skill``).
@@ -44,9 +52,10 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import jax
 import numpy as np
 
-from agents.lfd.config import LfdConfig
-from agents.lfd.figures import plot_lasa
+from agents.lfd.config import LATENT_POTENTIALS, LfdConfig
+from agents.lfd.figures import plot_lasa, plot_lasa_overview
 from agents.lfd.lasa_eval import canonical_shapes, evaluate_shapes, time_epochs
+from agents.lfd.lasa_summary import write_study
 from agents.lfd.skills import save_lasa_skills
 from mjxrmp import _xla  # sets the XLA:CPU flag before JAX initialises
 from mjxrmp.data.lasa import LASA_SHAPES
@@ -55,6 +64,8 @@ from mjxrmp.divergence import EXIT_DIVERGED, DivergenceError
 _xla.configure_script()  # XLA:CPU flag and compile cache (docs/design.md §5.6)
 
 log = functools.partial(print, flush=True)
+#: The all-shapes figure beside the study's summary.json (``--study``).
+OVERVIEW = "lasa_all_fields.png"
 
 
 def _check_steps(value: str) -> int | str:
@@ -78,6 +89,11 @@ def parse_args(argv: list[str] | None) -> tuple[argparse.ArgumentParser, argpars
     g.add_argument("--all", action="store_true", help="all 30 LASA shapes")
     p.add_argument("--iterations", type=int, default=None,
                    help="gradient steps (default: LfdConfig's 5000, with early stop)")
+    p.add_argument("--time-weight", type=float, default=None,
+                   help="weight of the arrival-time loss (default: LfdConfig's; 0: velocities "
+                        "only)")
+    p.add_argument("--latent-potential", choices=LATENT_POTENTIALS, default=None,
+                   help="latent potential (default: LfdConfig's)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="results/lfd_lasa/run")
     p.add_argument("--log-every", type=int, default=100, help="iterations per compiled chunk")
@@ -91,6 +107,9 @@ def parse_args(argv: list[str] | None) -> tuple[argparse.ArgumentParser, argpars
     p.add_argument("--goal-radius", type=float, default=0.05,
                    help="convergence radius of the check (normalised units)")
     p.add_argument("--no-figures", action="store_true")
+    p.add_argument("--study", default=None, metavar="DIR",
+                   help="also write the study summary DIR/summary.json and table.csv "
+                        "(e.g. results/lfd_lasa)")
     p.add_argument("--save-skills", default=None, metavar="DIR",
                    help="also save every trained shape as a reloadable skill DIR/<shape>/ "
                         "(agents.lfd.skills; default: off)")
@@ -124,8 +143,12 @@ def main(argv: list[str] | None = None) -> dict:
             p.error(f"--{flag.replace('_', '-')} must be >= 1, got {val}")
     if not args.goal_radius > 0:
         p.error(f"--goal-radius must be > 0, got {args.goal_radius}")
-    if args.iterations is not None:
-        config = config.replace(iterations=args.iterations)
+    changes = {k: getattr(args, k) for k in ("iterations", "time_weight", "latent_potential")
+               if getattr(args, k) is not None}
+    try:
+        config = config.replace(**changes)
+    except ValueError as err:
+        p.error(str(err))
     os.makedirs(args.out, exist_ok=True)
 
     try:
@@ -144,6 +167,14 @@ def main(argv: list[str] | None = None) -> dict:
         json.dump(run.record, f, indent=1)
     if not args.no_figures:
         plot_lasa(run, args.out)
+    if args.study is not None:
+        command = " ".join(["python", "scripts/lfd_lasa.py",
+                            *(sys.argv[1:] if argv is None else argv)])
+        os.makedirs(args.study, exist_ok=True)
+        if not args.no_figures:
+            plot_lasa_overview(run, os.path.join(args.study, OVERVIEW))
+        write_study(args.study, run.record, command,
+                    figures=() if args.no_figures else (OVERVIEW,))
     if args.save_skills is not None:
         save_lasa_skills(args.save_skills, names, config, run.result.variables, args.seed)
     print(f"wrote {args.out}/ ({run.record['train_seconds']:.0f} s training)")

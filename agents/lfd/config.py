@@ -31,7 +31,7 @@ __all__ = [
     "StrategyConfig",
 ]
 
-LATENT_POTENTIALS = ("norm", "quadratic")
+LATENT_POTENTIALS = ("norm", "quadratic", "blend")
 LOSSES = ("smooth_l1", "mse")
 INTEGRATORS = ("latent", "euler", "rk4")
 SPEED_ACTIVATIONS: dict[str, Callable[[jax.Array], jax.Array]] = {
@@ -69,10 +69,16 @@ class LfdConfig:
     Flow (§4.2.2): ``num_layers`` coupling layers of ``num_features`` random Fourier features
     with ``length_scale`` (``normalize_features``: eq 4.5's ``√(2/N)`` factor, off as in the
     original implementation, for which the learning rate was tuned). Field: ``latent_potential``
-    (``"norm"`` or ``"quadratic"``), ``potential_eps`` (smoothing radius of the norm potential),
+    (``"norm"``, ``"quadratic"`` or ``"blend"``, their sum with the quadratic scaled by
+    ``1/potential_length``), ``potential_eps`` (smoothing radius of the norm potential),
     ``scale_velocity`` with ``speed_hidden``/``speed_activation`` and the floor ``speed_min`` of
-    the learned speed (``0``: the original). Training: ``loss`` (``"smooth_l1"`` with
-    ``smooth_l1_beta``, or ``"mse"``), Adam ``learning_rate``, ``weight_decay`` (L2 on the
+    the learned speed (``0``: the original). Arrival-time loss (:mod:`agents.lfd.flow_training`):
+    ``time_weight`` (default ``0``: velocities only, as the committed LASA run; ``0.3`` with
+    ``latent_potential="blend"`` is the candidate for on-time arrival, not yet run at full
+    scale; not in the thesis), ``time_nodes``
+    quadrature nodes of :meth:`agents.lfd.flow_field.FlowField.time_to_go`, ``time_anchors``
+    samples per demonstration. Training: ``loss`` (``"smooth_l1"`` with ``smooth_l1_beta``, or
+    ``"mse"``), Adam ``learning_rate``, ``weight_decay`` (L2 on the
     gradient), ``max_grad_norm`` (``None``: no clipping), ``iterations``, ``batch_size``
     (``None``: full batch; else a random subset without replacement each step), ``patience``
     (early stop; ``None``: never). ``integrator`` is the ``method`` of
@@ -88,10 +94,14 @@ class LfdConfig:
     normalize_features: bool = False
     latent_potential: str = "norm"
     potential_eps: float = 1e-2
+    potential_length: float = 1.0
     scale_velocity: bool = True
     speed_hidden: tuple[int, ...] = (100, 100)
     speed_activation: str = "leaky_relu"
     speed_min: float = 0.1
+    time_weight: float = 0.0
+    time_nodes: int = 16
+    time_anchors: int = 8
     loss: str = "smooth_l1"
     smooth_l1_beta: float = 1.0
     learning_rate: float = 1e-4
@@ -105,9 +115,15 @@ class LfdConfig:
 
     def __post_init__(self) -> None:
         n = "LfdConfig."
-        for name in ("num_layers", "num_features", "iterations"):
+        for name in ("num_layers", "num_features", "iterations", "time_nodes",
+                     "time_anchors"):
             check_int(getattr(self, name), n + name)
-        for name in ("length_scale", "potential_eps", "smooth_l1_beta", "learning_rate"):
+        check_float(self.time_weight, n + "time_weight", allow_zero=True)
+        if self.time_weight > 0.0 and not self.scale_velocity:
+            raise ValueError(f"{n}time_weight > 0 trains the learned speed and needs "
+                             f"{n}scale_velocity=True")
+        for name in ("length_scale", "potential_eps", "potential_length", "smooth_l1_beta",
+                     "learning_rate"):
             check_float(getattr(self, name), n + name)
         for name in ("normalize_features", "scale_velocity", "fast_cos"):
             check_bool(getattr(self, name), n + name)

@@ -18,7 +18,8 @@ from agents.lfd.lasa_eval import LasaRun, box, velocity_program
 from agents.lfd.seeds import METRICS
 from mjxrmp.data import franka_demos
 
-__all__ = ["plot_franka_errors", "plot_franka_task", "plot_lasa", "plot_seeds"]
+__all__ = ["plot_franka_errors", "plot_franka_task", "plot_lasa", "plot_lasa_overview",
+           "plot_seeds"]
 
 
 def _pyplot() -> Any:
@@ -143,40 +144,53 @@ def plot_seeds(path: str, summary: dict) -> None:
 
 
 
+def _field_grids(run: LasaRun, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per shape a ``size × size`` grid over its demonstrations' box enlarged by 50 % and the
+    learned velocity on it: ``((S, size, size, 2), (S, size, size, 2))``."""
+    pad = [box(d, 0.5) for d in run.data["demos"]]
+    grids = np.stack([np.stack(np.meshgrid(np.linspace(lo[0], hi[0], size),
+                                           np.linspace(lo[1], hi[1], size)), -1)
+                      for lo, hi in pad]).astype(np.float32)
+    vel = np.asarray(velocity_program(run.field)(run.result.variables, jnp.asarray(grids)))
+    return grids, vel
+
+
+def _field_panel(ax: Any, grid: np.ndarray, vel: np.ndarray, demos: np.ndarray,
+                 rollouts: np.ndarray, legend: bool) -> None:
+    """Streamlines of one learned field with the demonstrations (black) and the reproductions
+    over 1.2 × the demonstrations' duration (red), as Fig 4.4."""
+    X, Y = grid[..., 0], grid[..., 1]
+    ax.streamplot(X, Y, vel[..., 0], vel[..., 1], color=np.linalg.norm(vel, axis=-1),
+                  cmap="viridis", density=1.4, linewidth=0.7, arrowsize=0.8)
+    for k, (d, r) in enumerate(zip(demos, rollouts, strict=True)):
+        ax.plot(d[:, 0], d[:, 1], color="k", lw=2.2, label="demonstrations" if k == 0 else None)
+        ax.plot(r[:, 0], r[:, 1], color="r", lw=1.4, ls="--",
+                label="reproductions" if k == 0 else None)
+    ax.plot(0, 0, "x", color="limegreen", ms=12, mew=3, label="goal")
+    ax.set_xlim(X.min(), X.max())
+    ax.set_ylim(Y.min(), Y.max())
+    ax.set_aspect("equal")
+    if legend:
+        ax.legend(loc="lower left", fontsize=7)
+
+
 def plot_lasa(run: LasaRun, out: str) -> None:
     """Per shape of :func:`agents.lfd.lasa_eval.evaluate_shapes`' ``run``: ``<shape>_field.png``,
     streamlines of the learned field with the demonstrations and the reproductions (as Fig 4.4),
     and ``<shape>_potential.png``, iso-contours of ``Φ(x) = ½‖φ(x) − φ(0)‖²`` with the
     demonstrations (as Fig 4.7), in ``out``."""
     plt = _pyplot()
-    data, rollouts, field, variables = run.data, run.rollouts, run.field, run.result.variables
+    data, field, variables = run.data, run.field, run.result.variables
     names = list(run.record["shapes"])
-    G = 80
-    pad = [box(d, 0.5) for d in data["demos"]]                      # figure extent
-    grids = np.stack([np.stack(np.meshgrid(np.linspace(lo[0], hi[0], G),
-                                           np.linspace(lo[1], hi[1], G)), -1)
-                      for lo, hi in pad]).astype(np.float32)
-    vel = np.asarray(velocity_program(field)(variables, jnp.asarray(grids)))
+    grids, vel = _field_grids(run, 80)
     pot = np.asarray(jax.jit(jax.vmap(field.potential))(variables, jnp.asarray(grids)))
     for i, name in enumerate(names):
         X, Y = grids[i, ..., 0], grids[i, ..., 1]
         demos = data["demos"][i]
 
         fig, ax = plt.subplots(figsize=(5, 5))
-        speed = np.linalg.norm(vel[i], axis=-1)
-        ax.streamplot(X, Y, vel[i, ..., 0], vel[i, ..., 1], color=speed, cmap="viridis",
-                      density=1.4, linewidth=0.7, arrowsize=0.8)
-        for k, d in enumerate(demos):
-            ax.plot(d[:, 0], d[:, 1], color="k", lw=2.2, label="demonstrations" if k == 0
-                    else None)
-            ax.plot(rollouts[i, k, :, 0], rollouts[i, k, :, 1], color="r", lw=1.4, ls="--",
-                    label="reproductions" if k == 0 else None)
-        ax.plot(0, 0, "x", color="limegreen", ms=12, mew=3, label="goal")
-        ax.set_xlim(X.min(), X.max())
-        ax.set_ylim(Y.min(), Y.max())
-        ax.set_aspect("equal")
+        _field_panel(ax, grids[i], vel[i], demos, run.rollouts[i], legend=True)
         ax.set_title(f"{name}: learned field (cf. Fig 4.4)")
-        ax.legend(loc="lower left", fontsize=7)
         fig.tight_layout()
         fig.savefig(os.path.join(out, f"{name}_field.png"), dpi=90)
         plt.close(fig)
@@ -195,3 +209,27 @@ def plot_lasa(run: LasaRun, out: str) -> None:
         fig.tight_layout()
         fig.savefig(os.path.join(out, f"{name}_potential.png"), dpi=90)
         plt.close(fig)
+
+
+def plot_lasa_overview(run: LasaRun, path: str, columns: int = 6) -> None:
+    """All shapes of ``run`` in one figure ``path``: one :func:`plot_lasa` field panel per
+    shape (streamlines, demonstrations, reproductions over 1.2 × the duration), ``columns``
+    per row, titled with the shape and its arrival count at 1.2 × the duration."""
+    plt = _pyplot()
+    names = list(run.record["shapes"])
+    grids, vel = _field_grids(run, 60)
+    rows = -(-len(names) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(3.2 * columns, 3.2 * rows), squeeze=False)
+    for ax in axes.flat[len(names):]:
+        ax.axis("off")
+    for i, (name, ax) in enumerate(zip(names, axes.flat, strict=False)):
+        _field_panel(ax, grids[i], vel[i], run.data["demos"][i], run.rollouts[i], legend=False)
+        a = run.record["shapes"][name]["arrival"]
+        ax.set_title(f"{name} ({a['within_1pct_at_horizon']}/{len(a['distance_at_horizon'])} "
+                     f"at 1.2·D)", fontsize=9)
+        ax.tick_params(labelsize=6)
+    fig.suptitle(f"LASA: learned fields, demonstrations (black) and reproductions over 1.2 × "
+                 f"the demonstrations' duration (red), {run.record['device']}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)

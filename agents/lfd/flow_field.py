@@ -24,6 +24,10 @@ defaults here, each switchable to the plain thesis form:
   that the field is continuous there. ``"quadratic"`` is the thesis' example ``Φ̄ = ½‖y‖²``
   (§4.3.1, §5.3.1), ``ẏ = −y``. The two have the same level sets, hence the same Fig 4.7
   contours, and the same streamlines; they differ only in the speed along them.
+  ``"blend"`` is their sum ``Φ̄ = √(‖y‖² + ε²) − ε + ‖y‖²/(2L)`` (``L = potential_length``):
+  latent speed ``‖y‖/√(‖y‖² + ε²) + ‖y‖/L``, about 1 near the goal and growing with the
+  distance, so a start farther out along the same streamlines moves proportionally faster
+  (same level sets and streamlines again).
 * ``scale_velocity=True``: (*) is multiplied by a learned positive scalar
   ``s(x) = s_min + (1 − s_min)·exp(MLP(x − g)) + 10⁻¹²`` (MLP ``2 → 100 → 100 → 1``, leaky-ReLU;
   its last layer is initialised at zero here, so ``s ≡ 1`` at initialisation). The original
@@ -43,6 +47,17 @@ zero only up to rounding (the two evaluations of ``φ(0)`` may be compiled diffe
 lane of a batch; observed ~1e-7), which the norm potential's gain ``1/ε`` near the origin would
 turn into ``‖ẋ(g)‖ ~ 1e-5``; :meth:`FlowField.velocity` therefore returns exactly ``0`` where
 ``x = g`` exactly (the value of (*) there for every ``θ``).
+
+**Arrival time.** ``ψ`` maps the solution of (*) from ``x`` onto the latent ray ``y = ρu``,
+``u = ψ(x)/‖ψ(x)‖``, along which ``ρ̇ = −s(ψ⁻¹(ρu))·γ(ρ)·ρ`` (:meth:`FlowField.latent_gain`), so
+the time the field takes from ``x`` to the latent ball ``ρ ≤ ε`` is the 1-D integral
+``τ(x) = ∫_ε^{‖ψ(x)‖} dρ / (s·γ(ρ)·ρ)`` along that ray — no rollout needed
+(:meth:`FlowField.time_to_go`; the latent integrator of :func:`rollout` follows the same ray,
+and its explicit Euler step is exact for a constant ``s`` while ``ρ ≫ ε``). The training's
+arrival-time loss (:mod:`agents.lfd.flow_training`) fits ``τ`` at samples of the
+demonstrations to the demonstrations' remaining time, so that reproductions arrive when the
+demonstrations do. It only selects which positive ``s`` is learned: the stability argument
+above holds for every ``s ≥ s_min > 0``, i.e. for every parameter value, with or without it.
 
 Training is :mod:`agents.lfd.flow_training`; the settings are :class:`agents.lfd.config.LfdConfig`
 (docs/design.md §4.6 defaults), with :func:`agents.lfd.fast_trig.fast_cos` features by default.
@@ -170,15 +185,19 @@ class FlowField:
         return 0.5 * jnp.sum(y * y, axis=-1)
 
     def latent_gain(self, y: jax.Array) -> jax.Array:
-        """The radial gain ``γ(‖y‖) ≥ 0`` with ``∇Φ̄(y) = γ(‖y‖)·y`` (both potentials are radial,
-        §4.3.1): ``1/√(‖y‖² + ε²)`` (``"norm"``) or ``1`` (``"quadratic"``), ``(..., 1)``."""
+        """The radial gain ``γ(‖y‖) > 0`` with ``∇Φ̄(y) = γ(‖y‖)·y`` (all potentials are radial,
+        §4.3.1): ``1/√(‖y‖² + ε²)`` (``"norm"``), ``1`` (``"quadratic"``) or
+        ``1/√(‖y‖² + ε²) + 1/L`` (``"blend"``, ``L = potential_length``), ``(..., 1)``."""
         if self.config.latent_potential == "quadratic":
             return jnp.ones_like(y[..., :1])
         eps = self.config.potential_eps
-        return 1.0 / jnp.sqrt(jnp.sum(y * y, axis=-1, keepdims=True) + eps * eps)
+        gain = 1.0 / jnp.sqrt(jnp.sum(y * y, axis=-1, keepdims=True) + eps * eps)
+        if self.config.latent_potential == "blend":
+            gain = gain + 1.0 / self.config.potential_length
+        return gain
 
     def latent_velocity(self, y: jax.Array) -> jax.Array:
-        """``−∇Φ̄(y)``: ``−y/√(‖y‖² + ε²)`` (``"norm"``) or ``−y`` (``"quadratic"``)."""
+        """``−∇Φ̄(y) = −γ(‖y‖)·y`` (:meth:`latent_gain`)."""
         return -self.latent_gain(y) * y
 
     def from_latent(self, variables: dict, y: jax.Array, goal: jax.Array | None = None
@@ -231,6 +250,31 @@ class FlowField:
             xd = self.speed(variables, x)[..., None] * xd
         return xd
 
+    def time_to_go(self, variables: dict, x: jax.Array, goal: jax.Array | None = None,
+                   num_nodes: int | None = None) -> jax.Array:
+        """The time (*) takes from ``x`` to the latent ball ``‖ψ‖ ≤ ε`` (``potential_eps``),
+        ``(...)`` (module docstring, "Arrival time"): the latent solution is the ray
+        ``y = ρu``, ``u = ψ(x)/‖ψ(x)‖``, with ``ρ̇ = −s(ψ⁻¹(ρu))·γ(ρ)·ρ``, so
+
+            ``τ(x) = ∫_ε^{‖ψ(x)‖} dρ / (s(ψ⁻¹(ρu))·γ(ρ)·ρ)``,
+
+        evaluated by the midpoint rule in ``log ρ`` with ``num_nodes`` nodes (default
+        ``config.time_nodes``; relative error ``≈ h²/24`` for a slowly varying ``s``, ``h`` the
+        node spacing in ``log ρ``). ``0`` inside the ball."""
+        n = self.config.time_nodes if num_nodes is None else num_nodes
+        check_int(n, "num_nodes")
+        y = self.latent(variables, x, goal)
+        eps = self.config.potential_eps
+        r = jnp.linalg.norm(y, axis=-1)
+        u = y / jnp.maximum(r, eps)[..., None]
+        span = jnp.log(jnp.maximum(r, eps) / eps)                          # (...)
+        rho = eps * jnp.exp(span[..., None] * (jnp.arange(n) + 0.5) / n)   # (..., n)
+        nodes = rho[..., None] * u[..., None, :]                            # (..., n, dim)
+        pts = self.from_latent(variables, nodes, goal)
+        # dρ/(s γ ρ) = d(log ρ)/(s γ), with d(log ρ) = span/n per node.
+        rate = self.speed(variables, pts, goal) * self.latent_gain(nodes)[..., 0]
+        return span / n * jnp.sum(1.0 / rate, axis=-1)
+
 
 
 def latent_step(field: FlowField, variables: dict, y: jax.Array, x: jax.Array,
@@ -256,9 +300,10 @@ def arrival_steps(config: LfdConfig, latent_norms: Any, dt: Any, shrink: float =
     ``r⁺ = r·max(0, 1 − dt·s·γ(r))``: for the ``"norm"`` potential ``γ(r) = 1/√(r² + ε²)`` gives a
     decrement of at least ``dt·s_min/√2`` while ``r ≥ ε`` and a contraction factor of at most
     ``1 − dt·s_min/(√2 ε)`` inside ``ε`` (so the arrival time is ``√2‖ψ(x₀)‖/s_min`` plus the
-    geometric approach, the module docstring's bound); for ``"quadratic"`` (``γ = 1``) the factor
-    is at most ``1 − dt·s_min``. Only meaningful for ``integrator="latent"``; ``speed_min`` must be
-    positive (without the floor no arrival time is guaranteed)."""
+    geometric approach, the module docstring's bound), and for ``"blend"``, whose ``γ`` is larger,
+    the same bound holds; for ``"quadratic"`` (``γ = 1``) the factor is at most
+    ``1 − dt·s_min``. Only meaningful for ``integrator="latent"``; ``speed_min`` must be positive
+    (without the floor no arrival time is guaranteed)."""
     if not config.speed_min > 0.0:
         raise ValueError(f"arrival_steps needs LfdConfig.speed_min > 0, got {config.speed_min!r}:"
                          f" without the speed floor no arrival time is guaranteed")

@@ -9,19 +9,36 @@ training loss; the parameters with the lowest loss are returned (:mod:`agents.lf
 ``variables["params"]`` is trained; the random Fourier features in ``variables["constants"]``
 stay fixed.
 
+**Arrival-time loss** (``LfdConfig.time_weight > 0``, applied when the demonstrations' time step
+``dt`` is passed; :func:`agents.lfd.lasa_eval.train_shapes` passes each shape's): the velocity
+loss fits the demonstrations' speeds sample by sample, but the 7 demonstrations of a shape all
+last ``(T − 1)·dt`` from starts at latent distances ``‖ψ(x₀)‖`` that differ by up to 35 %,
+and where they overlap no speed field fits all of them, so rollouts arrived anywhere from 0.76
+to 1.2 × the duration (measured). The loss adds ``time_weight`` times the mean over the
+demonstrations ``(N, T, dim)`` and :func:`time_anchors` ``t`` of
+``(log τ(x_t) − log((t_a − t)·dt))²``, the field's exact time to the latent ``ε``-ball
+(:meth:`agents.lfd.flow_field.FlowField.time_to_go`) against the demonstration's time to the
+``ε``-ball of the goal (its first sample ``t_a`` there; some demonstrations creep the last
+15 % of their duration within 1 % of the goal, which no field need copy).
+It trains the speed network only (the flow enters through ``stop_gradient``), so it shapes when
+the reproduction arrives, not where it goes; stability holds for every parameter value anyway
+(:mod:`agents.lfd.flow_field`). Called without ``dt``, the trainer fits velocities only, exactly
+as with ``time_weight = 0``.
+
 The training loop is one ``lax.scan`` over gradient steps, a pure function of explicit arrays, so
 it jits and ``vmap``s over seeds and over shapes stacked along a leading axis (all LASA shapes
 have the same sizes)::
 
     config = LfdConfig()                      # docs/design.md §4.6; LfdConfig.tiny() for tests
     trainer = make_train(config)              # dim=2
-    result = jax.jit(trainer.train)(key, demos, velocities)       # demos (7, 235, 2)
-    results = jax.jit(jax.vmap(trainer.train))(keys, D, V)        # shapes stacked: D (S, 7, 235, 2)
+    result = jax.jit(trainer.train)(key, demos, velocities, dt)   # demos (7, 235, 2)
+    results = jax.jit(jax.vmap(trainer.train))(keys, D, V, dts)   # shapes stacked: D (S, 7, 235, 2)
     xs = rollout(trainer.field, result.variables, demos[:, 0], 234, dt, method="latent")
     #    (7, 235, 2): in latent coordinates, monotone in ‖ψ‖ (agents.lfd.flow_field.rollout)
 
 For progress output run the same compiled step in chunks: ``state = trainer.init(key, x, v)``
-then repeatedly ``state, losses = trainer.run(state, x, v, num_steps)`` (``num_steps`` static),
+then repeatedly ``state, losses = trainer.run(state, x, v, num_steps, dt)`` (``num_steps``
+static),
 and finally ``trainer.result(state, all_losses)`` (:func:`train_batched` does this for a batch).
 Early stopping freezes the parameters (the scan keeps its static length; under ``vmap`` each
 member stops on its own). The epoch time is documented in :mod:`agents.lfd.fast_trig`.
@@ -50,9 +67,11 @@ __all__ = [
     "LfdResult",
     "TrainState",
     "Trainer",
+    "arrival_time_loss",
     "check_data",
     "finite_difference_velocities",
     "make_train",
+    "time_anchors",
     "train_batched",
 ]
 
@@ -153,6 +172,33 @@ def _velocity_loss(field: FlowField, params: Any, constants: Any, x: jax.Array,
     return jnp.mean(smooth_l1(err, field.config.smooth_l1_beta))
 
 
+def time_anchors(num_samples: int, num_anchors: int) -> np.ndarray:
+    """Sample indices of the arrival-time loss on a demonstration of ``num_samples`` samples:
+    ``round(j·(T − 1)/A)`` for ``j = 0 … A − 1`` (the start first; the last anchor still has
+    ``(T − 1)/A`` samples to go), ``(A,)`` int."""
+    return np.round(np.arange(num_anchors) * (num_samples - 1) / num_anchors).astype(int)
+
+
+def arrival_time_loss(field: FlowField, params: Any, constants: Any, x: jax.Array,
+               dt: jax.Array) -> jax.Array:
+    """The arrival-time loss (module docstring): over the demonstrations ``x (..., T, dim)``
+    (goal at the origin) and their :func:`time_anchors` ``t`` before the demonstration's arrival
+    ``t_a`` (its first sample within ``ε = potential_eps`` of the goal; ``T − 1`` if none), the
+    mean of ``(log τ(x_t) − log((t_a − t)·dt))²``: the field's time to the latent ``ε``-ball
+    against the demonstration's time to the ``ε``-ball. Only the speed network is trained by it
+    (the flow's parameters enter through ``stop_gradient``)."""
+    T = x.shape[-2]
+    idx = jnp.asarray(time_anchors(T, field.config.time_anchors))
+    inside = jnp.linalg.norm(x, axis=-1) <= field.config.potential_eps          # (..., T)
+    arrive = jnp.where(inside.any(-1), jnp.argmax(inside, axis=-1), T - 1)      # (...)
+    remaining = (arrive[..., None] - idx).astype(x.dtype) * dt                  # (..., A)
+    valid = remaining > 0
+    frozen = {"flow": jax.lax.stop_gradient(params["flow"]), "speed": params["speed"]}
+    tau = field.time_to_go({"params": frozen, CONSTANTS: constants}, x[..., idx, :])
+    err = jnp.log(jnp.maximum(tau, 1e-6)) - jnp.log(jnp.where(valid, remaining, 1.0))
+    return jnp.sum(jnp.where(valid, err * err, 0.0)) / jnp.maximum(jnp.sum(valid), 1)
+
+
 def make_train(config: LfdConfig | None = None, dim: int = 2) -> Trainer:
     """Build the training functions of a :class:`FlowField` for ``config`` (module docstring)."""
     config = LfdConfig() if config is None else config
@@ -161,7 +207,13 @@ def make_train(config: LfdConfig | None = None, dim: int = 2) -> Trainer:
     field = FlowField(dim=dim, config=config)
     tx = regularised_adam(config.learning_rate, config.weight_decay, config.max_grad_norm)
     flat_data = functools.partial(_flat_data, config, dim)
-    loss_fn = functools.partial(_velocity_loss, field)
+
+    def loss_fn(params, constants, x, v, demos, dt) -> jax.Array:
+        loss = _velocity_loss(field, params, constants, x, v)
+        if config.time_weight > 0.0 and dt is not None:
+            timing = arrival_time_loss(field, params, constants, demos, dt)
+            loss = loss + config.time_weight * timing
+        return loss
 
     def init(key, x, v) -> TrainState:
         flat_data(x, v)  # validate
@@ -174,12 +226,13 @@ def make_train(config: LfdConfig | None = None, dim: int = 2) -> Trainer:
             best_loss=jnp.asarray(jnp.inf, jnp.float32), best_step=jnp.zeros((), jnp.int32),
             since_best=jnp.zeros((), jnp.int32), stopped=jnp.zeros((), bool), key=k_data)
 
-    def step(state: TrainState, x, v) -> tuple[TrainState, jax.Array]:
+    def step(state: TrainState, x, v, demos, dt) -> tuple[TrainState, jax.Array]:
         key, sub = jax.random.split(state.key)
         if config.batch_size is not None:
             idx = jax.random.choice(sub, x.shape[0], (config.batch_size,), replace=False)
             x, v = x[idx], v[idx]
-        loss, grads = jax.value_and_grad(loss_fn)(state.params, state.constants, x, v)
+        loss, grads = jax.value_and_grad(loss_fn)(state.params, state.constants, x, v,
+                                                  demos, dt)
         improved, best_params, best_loss, since, move, stopped = early_stop_update(
             loss, state.params, state.best_params, state.best_loss, state.since_best,
             state.stopped, config.patience)
@@ -195,10 +248,13 @@ def make_train(config: LfdConfig | None = None, dim: int = 2) -> Trainer:
             stopped=stopped, key=key)
         return new, loss
 
-    def run(state: TrainState, x, v, num_steps: int) -> tuple[TrainState, jax.Array]:
+    def run(state: TrainState, x, v, num_steps: int, dt=None) -> tuple[TrainState, jax.Array]:
         check_int(num_steps, "num_steps (static)")
+        demos = jnp.asarray(x, jnp.float32)
+        dt = None if dt is None else jnp.asarray(dt, jnp.float32)
         x, v = flat_data(x, v)
-        return jax.lax.scan(lambda s, _: step(s, x, v), state, None, length=int(num_steps))
+        return jax.lax.scan(lambda s, _: step(s, x, v, demos, dt), state, None,
+                            length=int(num_steps))
 
     def result(state: TrainState, losses: jax.Array) -> LfdResult:
         # The best parameters seen so far; if the final parameters were never evaluated (the
@@ -206,9 +262,9 @@ def make_train(config: LfdConfig | None = None, dim: int = 2) -> Trainer:
         variables = {"params": state.best_params, CONSTANTS: state.constants}
         return LfdResult(variables, losses, state.best_loss, state.best_step, state.stopped)
 
-    def train(key, x, v) -> LfdResult:
+    def train(key, x, v, dt=None) -> LfdResult:
         state = init(key, x, v)
-        state, losses = run(state, x, v, config.iterations)
+        state, losses = run(state, x, v, config.iterations, dt)
         return result(state, losses)
 
     return Trainer(field, config, init, run, result, train)
@@ -220,13 +276,13 @@ def _batched_program(config: LfdConfig, dim: int, num_steps: int):
     repeated calls with the same configuration, chunk size and array shapes compile once)."""
     trainer = make_train(config, dim)
     init = jax.jit(jax.vmap(trainer.init))
-    run = jax.jit(jax.vmap(functools.partial(trainer.run, num_steps=num_steps)))
+    run = jax.jit(jax.vmap(lambda s, x, v, dt: trainer.run(s, x, v, num_steps, dt)))
     result = jax.jit(jax.vmap(trainer.result))
     return trainer, init, run, result
 
 
 def train_batched(config: LfdConfig, keys: jax.Array, x: jax.Array, v: jax.Array, *,
-                  dim: int = 2, log_every: int | None = None,
+                  dt: Any = None, dim: int = 2, log_every: int | None = None,
                   callback: Callable[[int, int, np.ndarray, TrainState], None] | None = None,
                   labels: Sequence[str] | None = None) -> tuple[Trainer, LfdResult]:
     """Train ``B`` independent fields in one ``vmap``-ped program: ``keys (B, 2)``, ``x`` and
@@ -259,11 +315,13 @@ def train_batched(config: LfdConfig, keys: jax.Array, x: jax.Array, v: jax.Array
     if chunk < 1:
         raise ValueError(f"log_every must be >= 1, got {log_every!r}")
     trainer, init, _, result = _batched_program(config, dim, chunk)
+    if dt is not None:
+        dt = jnp.broadcast_to(jnp.asarray(dt, jnp.float32), keys.shape[:1])
     state = init(keys, x, v)
     done, losses = 0, []
     while done < total:
         n = min(chunk, total - done)
-        state, ls = _batched_program(config, dim, n)[2](state, x, v)
+        state, ls = _batched_program(config, dim, n)[2](state, x, v, dt)
         ls = np.asarray(ls)                              # (B, n); waits for the chunk
         guard_finite_series({"loss": ls}, _WHAT, start=done, unit="iteration", runs=labels)
         done += n

@@ -12,8 +12,11 @@ Rollouts use ``LfdConfig.integrator`` (default ``"latent"``, :func:`agents.lfd.f
 ``y = ψ(x)`` moves straight to the origin without ever overshooting it and ``x = ψ⁻¹(y)`` with
 the flow's exact inverse, so ``‖ψ(x_k)‖`` is non-increasing for every start and step. The
 record (:mod:`agents.lfd.lasa_summary`) holds per shape the trajectory metrics between each
-rollout's first ``T`` samples and its demonstration and the same for a straight-line baseline,
-the training summary, the **converged** end points of the same rollouts run on to
+rollout's first ``T`` samples and its demonstration (``rmse`` at equal times, beside DTW and
+the swept area) and the same for a straight-line baseline, the **arrival check** (distance to
+the goal at ``1.2×`` the demonstration's duration, where the stored rollouts end, and the time
+from which each stays within 1 %; :mod:`agents.lfd.lasa_summary`, "Timing"), the training
+summary, the **converged** end points of the same rollouts run on to
 ``check_steps`` (default ``10·T``; ``"auto"``: the guaranteed arrival bound of every start,
 :func:`agents.lfd.flow_field.arrival_steps`) steps (acceptance: below 1 % of the workspace,
 0.01, since the normalised demonstrations span 1), and a convergence check: rollouts from
@@ -42,7 +45,16 @@ import numpy as np
 from agents.lfd.config import LfdConfig
 from agents.lfd.flow_field import FlowField, arrival_steps, rollout
 from agents.lfd.flow_training import LfdResult, Trainer, make_train, train_batched
-from agents.lfd.lasa_summary import format_summary, shape_line, shape_record, summary_table
+from agents.lfd.lasa_summary import (
+    ACCEPT_FINAL_ERROR,
+    ARRIVAL_HORIZON,
+    arrival_times,
+    format_summary,
+    horizon_steps,
+    shape_line,
+    shape_record,
+    summary_table,
+)
 from mjxrmp.data.lasa import LASA_SHAPES, load_shape
 
 __all__ = [
@@ -125,7 +137,7 @@ def train_shapes(names: list[str], data: dict, config: LfdConfig, seed: int,
         log(f"[{done:>5d}/{total}] {el:7.1f} s  mean loss {ls[:, -1].mean():.5f}  {per}{more}"
             + (f"  early-stopped: {stopped}/{len(names)}" if stopped else ""))
 
-    return train_batched(config, keys, data["demos"], data["velocities"],
+    return train_batched(config, keys, data["demos"], data["velocities"], dt=data["dt"],
                          log_every=log_every, callback=progress, labels=list(names))
 
 
@@ -203,7 +215,7 @@ def time_epochs(config: LfdConfig, num_epochs: int, seed: int = 0, shape: str = 
     data = load_data([shape])
     x, v = jnp.asarray(data["demos"][0]), jnp.asarray(data["velocities"][0])
     trainer = make_train(config)
-    run = jax.jit(functools.partial(trainer.run, num_steps=1))
+    run = jax.jit(functools.partial(trainer.run, num_steps=1, dt=float(data["dt"][0])))
     state = trainer.init(jax.random.PRNGKey(seed), x, v)
     t0 = time.perf_counter()
     state, _ = jax.block_until_ready(run(state, x, v))
@@ -227,7 +239,8 @@ def time_epochs(config: LfdConfig, num_epochs: int, seed: int = 0, shape: str = 
 
 class LasaRun(NamedTuple):
     """What :func:`evaluate_shapes` returns: the ``record`` (``metrics.json``), the loaded
-    ``data`` (:func:`load_data`), the reproductions ``rollouts (S, 7, T, 2)``, the trained
+    ``data`` (:func:`load_data`), the reproductions ``rollouts (S, 7, K, 2)`` over ``1.2·D``
+    (``K − 1 =`` :func:`agents.lfd.lasa_summary.horizon_steps`), the trained
     ``field`` and its training ``result`` (leaves stacked over shapes) and the shapes'
     enlarged bounding ``boxes``."""
 
@@ -265,7 +278,10 @@ def _record_header(config: LfdConfig, seed: int, train_s: float, steps: int, T: 
         "train_seconds": train_s,
         "rollout": f"method {config.integrator!r} of agents.lfd.flow_field.rollout with each "
                    f"shape's dt from each demonstration's first sample; metrics on the first T "
-                   f"samples, 'final_error_converged' after {max(steps, T - 1)} steps",
+                   f"samples ('rmse' against the demonstration at equal times), 'arrival' at "
+                   f"step {horizon_steps(T)} (>= {ARRIVAL_HORIZON} x the demonstration's "
+                   f"duration (T - 1)·dt; within {ACCEPT_FINAL_ERROR} of the goal), "
+                   f"'final_error_converged' after {max(steps, horizon_steps(T))} steps",
         "baseline": "straight line from the demonstration's start to the goal at uniform speed "
                     "over the demonstration's duration",
         "convergence_check": {"starts": check_starts, "steps": steps,
@@ -298,11 +314,14 @@ def evaluate_shapes(names: list[str], config: LfdConfig, *, seed: int = 0, log_e
     starts = np.stack([rng.uniform(lo, hi, (check_starts, 2)) for lo, hi in boxes])
     steps = check_horizon(check_steps, config, field, variables, data, starts)
     # Reproductions from each demonstration's start, run on to convergence: the trajectory
-    # metrics use the first T samples, the acceptance the converged end point.
+    # metrics use the first T samples, the arrival check the sample at 1.2·D, the acceptance
+    # the converged end point.
     dts = jnp.asarray(data["dt"])
-    long = _rollout_program(field, max(steps, T - 1), config.integrator)(
+    horizon = horizon_steps(T)
+    long = _rollout_program(field, max(steps, horizon), config.integrator)(
         variables, jnp.asarray(data["demos"][:, :, 0]), dts)
-    rollouts = np.asarray(long[:, :, :T])
+    rollouts = np.asarray(long[:, :, :horizon + 1])
+    arrival = arrival_times(np.asarray(long), T)
     demo_final, demo_monotone = convergence_stats(field, variables, long)
     check = _rollout_program(field, steps, config.integrator)(
         variables, jnp.asarray(starts, jnp.float32), dts)
@@ -326,7 +345,7 @@ def evaluate_shapes(names: list[str], config: LfdConfig, *, seed: int = 0, log_e
             "speed_at_goal": float(goal_speed[i])}
         record["shapes"][name] = shape_record(data["demos"][i], rollouts[i], data["dt"][i],
                                               training, demo_final[i], demo_monotone[i],
-                                              convergence)
+                                              convergence, arrival[i])
         log(shape_line(name, record["shapes"][name]))
     keys = list(record["shapes"][names[0]]["metrics"])
     record["mean_over_shapes"] = {

@@ -31,6 +31,7 @@ from agents.lfd.flow_training import finite_difference_velocities, make_train, t
 from agents.lfd.lasa_eval import NPZ_KEYS, canonical_shapes, latent_norms
 from mjxrmp.data.lasa import load_shape
 from mjxrmp.learned.gds import diffeomorphic_potential_gradient, smooth_norm_potential
+from mjxrmp.results.summary import load_summary
 
 SHAPE = "Angle"
 
@@ -440,23 +441,40 @@ def test_script_writes_documented_outputs(tmp_path):
     # steps: the script's quickest settings.
     run = _lasa_script("--shapes", SHAPE, "Sshape", "--tiny", "--log-every", "60",
                        "--check-starts", "7", "--check-steps", "234", "--no-figures",
-                       "--out", str(out))
+                       "--out", str(out), "--study", str(tmp_path / "study"))
     assert run.returncode == 0, run.stderr[-3000:]
+    record = json.loads((out / "metrics.json").read_text())
+    rec = record["shapes"][SHAPE]
     with np.load(out / f"{SHAPE}.npz") as z:
         assert set(NPZ_KEYS) <= set(z.files)
-        assert z["demos"].shape == z["rollouts"].shape == (7, 235, 2)
+        # Rollouts over 1.2 × the demonstration's duration: ⌈1.2·234⌉ = 281 steps of dt.
+        assert z["demos"].shape == (7, 235, 2) and z["rollouts"].shape == (7, 282, 2)
         np.testing.assert_allclose(z["rollouts"][:, 0], z["demos"][:, 0])
         assert z["dt"].shape == () and float(z["dt"]) > 0
         assert z["losses"].shape == (60,)
-    record = json.loads((out / "metrics.json").read_text())
-    rec = record["shapes"][SHAPE]
+        # The arrival check and the time-indexed RMSE can be read back from the file.
+        dist = np.linalg.norm(z["rollouts"][:, -1].astype(np.float64), axis=-1)
+        np.testing.assert_allclose(rec["arrival"]["distance_at_horizon"], dist, rtol=1e-6)
+        assert rec["arrival"]["within_1pct_at_horizon"] == int(np.sum(dist < 0.01))
+        err = np.linalg.norm((z["rollouts"][:, :235] - z["demos"]).astype(np.float64), axis=-1)
+        np.testing.assert_allclose(rec["per_demo"]["rmse"], np.sqrt(np.mean(err ** 2, -1)),
+                                   rtol=1e-6)
+    study = load_summary(tmp_path / "study" / "summary.json")
+    assert study["study"] == "lfd_lasa" and list(study["runs"]) == ["all_shapes"]
+    arrived = study["headline"]["rows"][0]["cells"]
+    assert arrived[0].startswith("demonstration starts within 1 % of the goal at 1.2")
+    assert arrived[2].startswith(f"{record['summary']['demo_starts_arrived']} / 14")
+    assert [r[0] for r in study["tables"]["shapes"]["rows"]] == [SHAPE, "Sshape"]
+    assert (tmp_path / "study" / "table.csv").read_text().startswith("quantity,")
     assert record["config"]["integrator"] == "latent"
     c = rec["convergence"]
     assert c["non_finite"] == 0 and 0.0 <= c["fraction_within_radius"] <= 1.0
     assert c["fraction_monotone"] == 1.0 and rec["demo_rollouts_monotone"]
     assert len(rec["final_error_converged"]) == 7
     summary = record["summary"]
-    assert set(summary["per_shape"]) == {SHAPE, "Sshape"}
+    assert set(summary["per_shape"]) == {SHAPE, "Sshape"} and summary["demo_starts"] == 14
+    assert summary["median_rmse"] == pytest.approx(float(np.median(
+        [record["shapes"][n]["metrics"]["rmse"] for n in (SHAPE, "Sshape")])))
     assert summary["median_dtw_normalized"] == pytest.approx(float(np.median(
         [record["shapes"][n]["metrics"]["dtw_normalized"] for n in (SHAPE, "Sshape")])))
     assert "median" in run.stdout
