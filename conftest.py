@@ -45,6 +45,8 @@ if "xla_backend_optimization_level" not in os.environ["XLA_FLAGS"]:
 #: The longest test modules, longest first (their durations in the default suite on 2 cores,
 #: 2026-11-27, after the cuts of that day); scheduled before all others.
 LONG_FIRST = (
+    "tests/agents/test_sweep.py",
+    "tests/agents/test_distributed.py",
     "tests/agents/test_eval.py",
     "tests/offline/test_offline_experiment.py",
     "tests/agents/lfd/test_lfd_franka_eval.py",
@@ -55,6 +57,9 @@ LONG_FIRST = (
     "tests/envs/test_reset_pool.py",
     "tests/agents/lfd/test_lfd_two_step.py",
     "tests/agents/test_bench_profile.py",
+    "tests/agents/test_sim2sim.py",
+    "tests/agents/test_bench_scaling.py",
+    "tests/agents/lfd/test_lfd_lasa_timing.py",
     "tests/agents/lfd/test_skills.py",
     "tests/agents/lfd/test_lfd_flow_field.py",
     "tests/offline/test_collect.py",

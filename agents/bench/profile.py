@@ -16,6 +16,7 @@ import glob
 import gzip
 import json
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -82,21 +83,27 @@ def limit_checks(env_name: str, episodes: int, horizon: int, key: jax.Array,
 
 
 def profile_env(env_name: str, batch: int, steps: int, repeats: int, episodes: int,
-                horizon: int, key: jax.Array, trained_run: str | None = None
-                ) -> dict[str, Any]:
+                horizon: int, key: jax.Array, trained_run: str | None = None,
+                phases: Sequence[str] | None = None) -> dict[str, Any]:
     """Phase timings, kernel counts and the joint-limit checks (:func:`limit_checks`) for one
-    environment."""
+    environment; ``phases``: only these phases (default None: every phase; a subset, which
+    must hold the floor ``physics_contact_free``, is for quick checks)."""
     k_phase, k_limit = jax.random.split(key)
     programs = phase_programs(env_name, batch, steps, k_phase)
-    phases = {name: time_phase(fn, steps, repeats) for name, fn in programs.items()}
-    kernels = {name: kernel_stats(programs[name], steps) for name in TRACED}
+    if phases is not None:
+        if not set(phases) <= set(programs) or "physics_contact_free" not in phases:
+            raise ValueError(f"phases must be phases of {sorted(programs)} including "
+                             f"physics_contact_free, got {list(phases)}")
+        programs = {name: fn for name, fn in programs.items() if name in phases}
+    timed = {name: time_phase(fn, steps, repeats) for name, fn in programs.items()}
+    kernels = {name: kernel_stats(programs[name], steps) for name in TRACED if name in programs}
     limits = (limit_checks(env_name, episodes, horizon, k_limit, trained_run) if episodes
               else None)
-    return {"phases": phases, "kernels": kernels, "limits": limits}
+    return {"phases": timed, "kernels": kernels, "limits": limits}
 
 
 def _ms(phases: dict, name: str) -> str:
-    return f"{phases[name]['per_step_s'] * 1e3:.3f}"
+    return f"{phases[name]['per_step_s'] * 1e3:.3f}" if name in phases else "—"
 
 
 def _rows(env_name: str, r: dict[str, Any]) -> list[list[Any]]:

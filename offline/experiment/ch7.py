@@ -79,7 +79,7 @@ PRESETS = {
                 hidden=[256, 256, 256], seeds=5, eval_episodes=64, chunk=25_000),
 }
 #: Arguments a preset fills that must be positive.
-_POSITIVE = ("seeds", "steps", "scale", "eval_episodes", "chunk")
+_POSITIVE = ("seeds", "steps", "scale", "eval_episodes", "chunk", "reference_episodes")
 
 #: The command line of ``scripts/reproduce_ch7.py`` (``--out`` is the script's own).
 OPTIONS = (
@@ -100,6 +100,10 @@ OPTIONS = (
              "protocol; §7.4.1's D4RL protocol gives a small expert set; cells get their own "
              "key)")),
     Option(("--eval-episodes",), dict(type=int, default=None)),
+    Option(("--reference-episodes",), dict(
+        type=int, default=evaluate.REFERENCE_EPISODES,
+        help="episodes of the expert / random reference returns (default %(default)s; fewer "
+             "only for quick checks)")),
     Option(("--chunk",), dict(type=int, default=None, help="gradient steps per compiled call")),
     Option(("--curve",), dict(
         action="store_true",
@@ -194,7 +198,8 @@ def train_stage(args: Any) -> None:
                     done.add(cell)
                     continue
                 evaluator = evaluator or evaluate.make_evaluator(
-                    env, args.eval_episodes, env_kwargs=control_rate_kwargs(env, args.substeps))
+                    env, args.eval_episodes, env_kwargs=control_rate_kwargs(env, args.substeps),
+                    reference_episodes=args.reference_episodes)
                 trainer = build(learner, dyn, rd, budget, scenario)
                 ev, train_s, eval_s, ckpt = _train_cell(
                     args, cell, f"{env} {scenario} {learner}", trainer, evaluator)

@@ -69,6 +69,10 @@ OPTIONS = (
     Option(("--chunk",), dict(type=int, default=500,
                               help="steps per compiled call/checkpoint")),
     Option(("--eval-episodes",), dict(type=int, default=32)),
+    Option(("--reference-episodes",), dict(
+        type=int, default=evaluate.REFERENCE_EPISODES,
+        help="episodes of the expert and random reference returns of the normalised score "
+             "(default %(default)s; fewer only for quick checks)")),
     Option(("--remove-terminals",), dict(action="store_true")),
     *LEARNER_OPTIONS,
     Option(("--data-seed",), dict(type=int, default=0)),
@@ -81,7 +85,7 @@ OPTIONS = (
 def check_args(args: Any) -> Any:
     """Check the parsed :data:`OPTIONS` (``ValueError`` with the message for the command
     line); returns ``args``."""
-    for name in ("scale", "steps", "batch", "chunk", "eval_episodes"):
+    for name in ("scale", "steps", "batch", "chunk", "eval_episodes", "reference_episodes"):
         if getattr(args, name) < 1:
             raise ValueError(f"--{name.replace('_', '-')} must be a positive integer")
     for flag, path in (("--dataset", args.dataset), ("--expert", args.expert)):
@@ -208,7 +212,8 @@ def train(args: Any) -> dict[str, Any]:
         if bar is not None:
             bar.close()
     train_s = time.perf_counter() - t_train
-    evaluator = evaluate.make_evaluator(env, args.eval_episodes)
+    evaluator = evaluate.make_evaluator(env, args.eval_episodes,
+                                        reference_episodes=args.reference_episodes)
     ev = jax.vmap(lambda p: evaluator.evaluate(trainer.act, p, jax.random.PRNGKey(10_000)))(
         actor_params(state))
     result = {**meta, "train_s": train_s, "wall_s": time.perf_counter() - t_start,

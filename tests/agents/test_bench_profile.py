@@ -36,13 +36,18 @@ def test_contact_free_model_disables_the_constraint_stages():
         physics_model(env.mj_model, "fast")
 
 
-def test_profile_of_every_phase_is_written_as_a_study(tmp_path):
-    """A tiny profile on this CPU: every phase timed (positive, finite), kernels absent
-    without a GPU, the joint-limit check finite, and the study validates."""
-    r = profile_env("three_link/env3", batch=2, steps=2, repeats=1, episodes=2, horizon=3,
-                    key=jax.random.PRNGKey(0))
-    names = {f"physics_{v}" for v in PHYSICS_VARIANTS} | {
-        "env_step_raw", "env_step", "env_step_pooled", "reset", "observe", "rmp2_policy"}
+#: Every phase :func:`profile_env` times by default.
+ALL_PHASES = {f"physics_{v}" for v in PHYSICS_VARIANTS} | {
+    "env_step_raw", "env_step", "env_step_pooled", "reset", "observe", "rmp2_policy"}
+
+
+def _profile_is_written_as_a_study(tmp_path, phases: set[str] | None) -> None:
+    """A tiny profile on this CPU of ``phases`` (None: all): every phase asked for timed
+    (positive, finite), kernels absent without a GPU, the joint-limit check finite (2 episodes
+    × 4 steps, the size of tests/agents/test_limit_check.py), and the study validates."""
+    r = profile_env("three_link/env3", batch=2, steps=2, repeats=1, episodes=2, horizon=4,
+                    key=jax.random.PRNGKey(0), phases=None if phases is None else sorted(phases))
+    names = ALL_PHASES if phases is None else phases
     assert set(r["phases"]) == names
     assert all(0 < t["per_step_s"] < 10 for t in r["phases"].values())
     assert all(k is None for k in r["kernels"].values())
@@ -52,6 +57,20 @@ def test_profile_of_every_phase_is_written_as_a_study(tmp_path):
     summary = load_summary(path)
     assert len(summary["tables"]["phases"]["rows"]) == len(names)
     assert (tmp_path / "table.csv").read_text().startswith("environment,phase")
+
+
+def test_profile_of_a_subset_of_phases_is_written_as_a_study(tmp_path):
+    """The quick check of :func:`test_profile_of_every_phase_is_written_as_a_study`: the floor
+    and three phases (the other phases' programs are never compiled)."""
+    _profile_is_written_as_a_study(tmp_path, {"physics_contact_free", "reset", "observe",
+                                              "rmp2_policy"})
+
+
+@pytest.mark.slow
+def test_profile_of_every_phase_is_written_as_a_study(tmp_path):
+    """Every phase (the default) profiled and written; the default suite checks a subset
+    (:func:`test_profile_of_a_subset_of_phases_is_written_as_a_study`)."""
+    _profile_is_written_as_a_study(tmp_path, None)
 
 
 def test_kernel_count_reads_gpu_stream_events_only(tmp_path):

@@ -17,6 +17,7 @@ import jax
 import numpy as np
 import pytest
 from jax import export as jax_export
+from script_main import load_script
 
 import mjxrmp  # noqa: F401  (XLA flags first)
 from agents.ppo import PPOConfig
@@ -163,12 +164,14 @@ def test_mismatched_setup_is_refused(sweep):
 def test_report_with_gif_of_the_best_episode(trained, tmp_path):
     """:func:`evaluate_runs`: rows per checkpoint, one group, the GIF replays episode 0 of the
     best row's best seed (the same episode as evaluated); unreadable setups, missing
-    checkpoints and missing run directories raise clear errors."""
+    checkpoints and missing run directories raise clear errors. (The sizes of the ``sweep``
+    fixture: the same program, compiled once.)"""
     _, out = trained
     gif = str(tmp_path / "best.gif")
-    report = evaluate_runs([out], ["all"], num_episodes=2, horizon=5, per_episode=True, gif=gif)
+    report = evaluate_runs([out], ["all"], num_episodes=EPISODES, horizon=HORIZON,
+                           per_episode=True, gif=gif)
     assert [(r["iteration"], len(r["seeds"]), r["episodes"]) for r in report["rows"]] == \
-        [(2, 2, 2), (4, 2, 2)]
+        [(2, 2, EPISODES), (4, 2, EPISODES)]
     assert len(report["groups"]) == 1 and report["groups"][0]["members"] == 4
     assert report["compile_seconds"] > 0 and report["run_seconds"] > 0
     json.dumps(report, allow_nan=False)
@@ -187,9 +190,9 @@ def test_report_with_gif_of_the_best_episode(trained, tmp_path):
         evaluate_runs([str(tmp_path / "missing")])
 
 
-def test_cli_writes_json(trained, tmp_path):
-    """``scripts/eval.py`` end to end (a subprocess): the table, the JSON report, exit status 2
-    with the error for a missing run directory."""
+def test_cli_writes_json(trained, tmp_path, capsys):
+    """``scripts/eval.py`` end to end (a subprocess): the table, the JSON report; exit status 2
+    with the error for a missing run directory (its ``main``, in this process)."""
     _, out = trained
     path = str(tmp_path / "eval.json")
     env = {**os.environ, "JAX_PLATFORMS": "cpu"}
@@ -201,9 +204,9 @@ def test_cli_writes_json(trained, tmp_path):
     with open(path) as f:
         report = json.load(f)
     assert [r["iteration"] for r in report["rows"]] == [4] and report["gif"] is None
-    proc = subprocess.run([sys.executable, script, str(tmp_path / "missing")],
-                          capture_output=True, text=True, env=env, timeout=600)
-    assert proc.returncode == 2 and "does not exist" in proc.stderr, proc.stderr[-3000:]
+    # the missing run directory through the script's main in this process (no new interpreter)
+    assert load_script("eval.py").main([str(tmp_path / "missing")]) == 2
+    assert "does not exist" in capsys.readouterr().err
 
 
 def test_export_checkpoint_matches_deterministic_policy(trained, tmp_path):

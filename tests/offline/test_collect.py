@@ -12,14 +12,13 @@ from __future__ import annotations
 import itertools
 import json
 import os
-import subprocess
-import sys
 import warnings
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from script_main import load_script
 
 import mjxrmp  # noqa: F401  (XLA flags first)
 from agents.ppo import PPOConfig
@@ -33,7 +32,6 @@ from offline.data import collect as oc
 from offline.data import dataset as odata
 from offline.data import scenarios as sc
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 ENV = "three_link/env1"
 BATCH = 8
 # Seed whose 8 uniform-random episodes on env1 include collisions (2) and timeouts (6).
@@ -344,18 +342,19 @@ def test_plfo_scenarios(recipes, tmp_path):
         sc.make("IL", mixed)
 
 
-def test_cli(tmp_path):
-    """``scripts/collect.py`` as a program: the fallback warning, the report and the dataset file;
-    no silent overwrite. Bad requests are refused by
+def test_cli(tmp_path, capsys):
+    """``scripts/collect.py``'s ``main`` (the command line, in this process: its rollout programs
+    are the ones the module's fixtures compiled): the fallback warning, the report and the
+    dataset file; no silent overwrite (exit status 2). Bad requests are refused by
     :func:`offline.data.collect.resolve_request`."""
-    script = [sys.executable, os.path.join(ROOT, "scripts", "collect.py")]
+    script = load_script("collect.py")
     out = tmp_path / "env1_medium.npz"
-    done = subprocess.run([*script, "--env", ENV, "--recipe", "medium", "--episodes",
-                           str(BATCH), "--seed", "2", "--out", str(out)],
-                          capture_output=True, text=True, check=True)
-    assert "WARNING: FALLBACK" in done.stderr and "noisy-0.5" in done.stderr
-    assert "ALL" in done.stdout and '"fallback": "FALLBACK' in done.stdout
-    report = json.loads(done.stdout.strip().splitlines()[-1])
+    script.main(["--env", ENV, "--recipe", "medium", "--episodes", str(BATCH), "--seed", "2",
+                 "--out", str(out)])
+    done = capsys.readouterr()
+    assert "WARNING: FALLBACK" in done.err and "noisy-0.5" in done.err
+    assert "ALL" in done.out and '"fallback": "FALLBACK' in done.out
+    report = json.loads(done.out.strip().splitlines()[-1])
     ds = odata.load(out)
     assert ds.metadata["recipe"] == "medium" and ds.metadata["fallback"] == report["fallback"]
     assert report["episodes"] == BATCH and report["terminals"] + report["timeouts"] == BATCH
@@ -366,6 +365,6 @@ def test_cli(tmp_path):
         with pytest.raises(ValueError, match=what):
             oc.resolve_request(*bad)
     assert oc.resolve_request(ENV, "mixed", 1) == ENV
-    again = subprocess.run([*script, "--env", ENV, "--recipe", "expert", "--out", str(out)],
-                           capture_output=True, text=True)
-    assert again.returncode == 2 and "exists" in again.stderr
+    with pytest.raises(SystemExit) as again:
+        script.main(["--env", ENV, "--recipe", "expert", "--out", str(out)])
+    assert again.value.code == 2 and "exists" in capsys.readouterr().err

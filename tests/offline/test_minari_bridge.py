@@ -161,16 +161,18 @@ def test_non_box_spaces_and_missing_datasets_are_refused(monkeypatch, tmp_path, 
 
 def test_bc_trains_from_a_minari_dataset_through_the_script(exported, tmp_path):
     """``scripts/train_offline.py --learner BC --dataset minari:<folder>`` at the smallest size:
-    it trains, evaluates on the dataset's environment and writes ``result.json``."""
+    it trains, evaluates on the dataset's environment (reference returns on 8 episodes, not
+    256) and writes ``result.json``."""
     out = tmp_path / "run"
     done = subprocess.run(
         [sys.executable, str(ROOT / "scripts" / "train_offline.py"), "--learner", "BC",
          "--dataset", f"minari:{exported / DATASET_ID}", "--steps", "10", "--chunk", "10",
-         "--hidden", "8", "--batch", "8", "--seeds", "0", "--eval-episodes", "2", "--out",
-         str(out), "--no-progress"],
+         "--hidden", "8", "--batch", "8", "--seeds", "0", "--eval-episodes", "2",
+         "--reference-episodes", "8", "--out", str(out), "--no-progress"],
         capture_output=True, text=True, cwd=ROOT, env={**os.environ})
     assert done.returncode == 0, done.stderr[-2000:]
     result = json.loads((out / "result.json").read_text())
     assert result["learner"] == "BC" and result["env"] == ENV and result["steps"] == 10
     assert np.isfinite(result["normalized_score"]).all()
+    assert result["reference"]["episodes"] == 8
     assert f"BC on {ENV}" in done.stdout

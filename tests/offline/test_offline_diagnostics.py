@@ -3,21 +3,18 @@ closed form, the ATAC-vs-BC learning curve and BC by data source on tiny synthet
 run of ``scripts/offline_diagnostics.py action-gap``."""
 
 import json
-import subprocess
-import sys
-from pathlib import Path
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from script_main import load_script
 
 from offline.data import dataset as odata
 from offline.experiment import diagnostics
 from offline.learners.registry import Budget
 
-ROOT = Path(__file__).resolve().parents[2]
 GAMMA = 0.9
 
 
@@ -148,10 +145,11 @@ def test_mixed_file(tmp_path):
 
 
 def test_script_action_gap(tmp_path):
-    """The cheapest subcommand end to end on the real environment (2 scenes, 3 steps)."""
+    """The cheapest subcommand end to end on the real environment (2 scenes, 3 steps), through
+    the script's ``main`` in this process."""
     out = tmp_path / "gap.jsonl"
-    subprocess.run([sys.executable, "scripts/offline_diagnostics.py", "action-gap", "--scenes",
-                    "2", "--horizon", "3", "--out", str(out)], cwd=ROOT, check=True)
+    load_script("offline_diagnostics.py").main(["action-gap", "--scenes", "2", "--horizon", "3",
+                                                "--out", str(out)])
     r = json.loads(out.read_text())
     q = np.asarray(r["q"])
     assert q.shape == (2, 5) and np.all(np.isfinite(q))

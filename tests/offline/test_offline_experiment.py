@@ -15,6 +15,7 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+from script_main import load_script
 
 from offline.data import dataset as odata
 from offline.data import scenarios
@@ -275,6 +276,8 @@ def test_ch7_expert_set_size_gets_its_own_data_cells_and_table(tmp_path):
         ch7_table.table_stage(other)
     with pytest.raises(SystemExit):
         ch7_args([*base, "--expert-scale", "0"])
+    with pytest.raises(SystemExit):
+        ch7_args([*base, "--reference-episodes", "0"])
 
 
 @pytest.fixture(scope="module")
@@ -288,13 +291,15 @@ def ch7_data(tmp_path_factory) -> Path:
 
 def test_ch7_learning_curves_end_at_the_final_scores(tmp_path, ch7_data):
     """``reproduce_ch7.py --curve``: one evaluation per chunk in the row, the last equal to the
-    row's final evaluation (same parameters, same episodes)."""
+    row's final evaluation (same parameters, same episodes); reference returns on 8 episodes
+    (``--reference-episodes``; 256 by default)."""
     shutil.copytree(ch7_data, tmp_path / "data")
     ch7_table.run(ch7_args(["--out", str(tmp_path), "--scale", "1", "--steps", "40", "--chunk",
                             "20", "--hidden", "16", "16", "--seeds", "2", "--eval-episodes",
-                            "2", "--scenarios", "ILfO", "--learners", "BC", "--curve"]))
+                            "2", "--reference-episodes", "8", "--scenarios", "ILfO",
+                            "--learners", "BC", "--curve"]))
     (row,) = [json.loads(x) for x in (tmp_path / "results.jsonl").read_text().splitlines()]
-    assert row["curve"]["steps"] == [20, 40]
+    assert row["curve"]["steps"] == [20, 40] and row["reference"]["episodes"] == 8
     assert np.asarray(row["curve"]["normalized_score"]).shape == (2, 2)  # steps × seeds
     for k in ("normalized_score", "safe_pct", "success_pct"):
         assert row["curve"][k][-1] == row[k], k
@@ -308,7 +313,8 @@ def test_ch7_oracle_is_trained_once_per_dynamics_dataset(tmp_path, ch7_data):
     assert same_dynamics("RLfO") == ("ILfO", "RLfO", "RL-sample")
     assert same_dynamics("IL") == same_dynamics("RL-expert") == ("IL", "RL-expert")
     budget = ["--scale", "1", "--steps", "20", "--chunk", "20", "--hidden", "16", "16",
-              "--seeds", "2", "--eval-episodes", "2", "--learners", "Oracle"]
+              "--seeds", "2", "--eval-episodes", "2", "--reference-episodes", "8", "--learners",
+              "Oracle"]
     argv = ["--out", str(tmp_path), *budget, "--scenarios", "ILfO", "RLfO", "RL-sample"]
     shutil.copytree(ch7_data, tmp_path / "data")
     ch7_table.run(ch7_args(argv))
@@ -338,6 +344,8 @@ def test_train_offline_refuses_bad_arguments(tmp_path, capsys):
                       (["--learner", "BC", "--dataset", str(tmp_path / "nope.npz")],
                        "does not exist"),
                       (["--learner", "BC", "--steps", "0"], "positive integer"),
+                      (["--learner", "BC", "--reference-episodes", "0"],
+                       "--reference-episodes must be a positive integer"),
                       (["--learner", "BC", "--expert", str(tmp_path)], "only used with"),
                       (["--learner", "BC", "--betas", "1"], "Bellman weight"),
                       (["--learner", "ATAC", "--betas", "1", "-2"], "finite numbers >= 0")):
@@ -346,16 +354,20 @@ def test_train_offline_refuses_bad_arguments(tmp_path, capsys):
         assert msg in capsys.readouterr().err
 
 
-def test_scripts_refuse_bad_arguments_on_the_command_line(tmp_path):
-    """The offline scripts, run as programs, exit with status 2 and the package's message when
-    their arguments are refused (before any data is collected)."""
+def test_scripts_refuse_bad_arguments_on_the_command_line(tmp_path, capsys):
+    """The offline scripts exit with status 2 and the package's message when their arguments
+    are refused (before any data is collected): ``collect.py`` run as a program, the others'
+    ``main`` in this process (the same parsing and exit, no new interpreter)."""
+    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "collect.py"), "--recipe",
+                           "nope", "--out", str(tmp_path / "x.npz")],
+                          capture_output=True, text=True, cwd=tmp_path)
+    assert done.returncode == 2 and "valid recipes are" in done.stderr, done.stderr[-500:]
     for script, argv, msg in (
             ("reproduce_ch7.py", ["--expert-scale", "0"], "--expert-scale must be >= 1"),
             ("reproduce_ch8.py", ["--goal-deadline", "0"], "--goal-deadline must be a positive"),
-            ("train_offline.py", ["--learner", "BC", "--steps", "0"], "positive integer"),
-            ("collect.py", ["--recipe", "nope", "--out", str(tmp_path / "x.npz")],
-             "valid recipes are")):
-        done = subprocess.run([sys.executable, str(ROOT / "scripts" / script), *argv,
-                               *(["--out", str(tmp_path)] if script.startswith("repro") else [])],
-                              capture_output=True, text=True, cwd=tmp_path)
-        assert done.returncode == 2 and msg in done.stderr, (script, done.stderr[-500:])
+            ("train_offline.py", ["--learner", "BC", "--steps", "0"], "positive integer")):
+        with pytest.raises(SystemExit) as exit_:
+            load_script(script).main([*argv, *(["--out", str(tmp_path)]
+                                               if script.startswith("repro") else [])])
+        err = capsys.readouterr().err
+        assert exit_.value.code == 2 and msg in err, (script, err[-500:])

@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from script_main import load_script
 
 import mjxrmp  # noqa: F401  (XLA flags first)
 from agents.lfd.config import StrategyConfig
@@ -47,8 +48,12 @@ def _script(name: str, *args: str) -> subprocess.CompletedProcess:
 
 @needs_data
 def test_script_quick_runs_end_to_end(tmp_path):
-    _script("lfd_franka.py", "--quick", "--out", str(tmp_path), "--figures", str(tmp_path),
-            "--save-skills", str(tmp_path / "skills"))
+    """``scripts/lfd_franka.py --quick``'s ``main`` in this process (so that the second seed
+    below reuses its compiled training program, under the script's matrix precision), then
+    ``scripts/lfd_franka_seeds.py`` as a subprocess."""
+    script = load_script("lfd_franka.py")
+    script.main(["--quick", "--out", str(tmp_path), "--figures", str(tmp_path),
+                 "--save-skills", str(tmp_path / "skills")])
     m = json.loads((tmp_path / "metrics.json").read_text())
     saved = sorted((tmp_path / "skills" / "drawer_closing" / "joint").iterdir())
     folds = m["tasks"]["drawer_closing"]["joint"]["folds"]
@@ -77,7 +82,8 @@ def test_script_quick_runs_end_to_end(tmp_path):
     fields = {f.name for f in dataclasses.fields(FrankaEvalConfig)}
     config = FrankaEvalConfig(**{k: v for k, v in settings.items() if k in fields} | {"seed": 1})
     lines = []
-    result = compare_strategies(config, lines.append)
+    with jax.default_matmul_precision(settings["matmul_precision"]):  # as the script runs it
+        result = compare_strategies(config, lines.append)
     assert any(line.strip().startswith("joint") for line in lines)
     assert table_lines(result.rows)[1].startswith("drawer_closing   joint")
     j1 = result.metrics["drawer_closing"]["joint"]
