@@ -94,7 +94,9 @@ def first_nonfinite_leaf(tree: Any, *, batched: bool = False
     the index along the leading axis with ``batched``, else None), or None if all are finite.
     Searched on the host: no compilation per leaf shape."""
     for path, leaf in jax.tree_util.tree_leaves_with_path(tree):
-        if not jnp.issubdtype(getattr(leaf, "dtype", np.result_type(leaf)), jnp.inexact):
+        # A leaf's own dtype where it has one: np.result_type(jax.Array) is deprecated (jax 0.12).
+        dtype = leaf.dtype if hasattr(leaf, "dtype") else np.result_type(leaf)
+        if not jnp.issubdtype(dtype, jnp.inexact):
             continue
         values = np.asarray(leaf)
         flat = values.reshape((values.shape[0], -1) if batched else (1, -1))
