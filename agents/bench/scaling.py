@@ -10,14 +10,12 @@ the parts present, so either part can be measured again alone.
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 from typing import Any
 
-import jax
 import numpy as np
 
-from agents.bench.throughput import measure_ppo
+from agents.bench.throughput import measure_ppo, time_chunk
 from agents.run.program import build
 from agents.run.spec import RunSpec, preset
 from agents.run.sweep import SweepSpec, initial_rows
@@ -42,12 +40,7 @@ def measure_sweep(env: str, policy: str, runs: int, iterations: int, preset_name
     sweep = SweepSpec(base, grid)
     program = build(sweep.points()[0][1])
     compiled_before = program.compile_seconds  # the program is shared by every ``runs``
-    state = jax.block_until_ready(initial_rows(program, sweep))
-    exe = program.executable(state, iterations)
-    state, _ = jax.block_until_ready(exe(state))
-    t0 = time.perf_counter()
-    jax.block_until_ready(exe(state))
-    dt = time.perf_counter() - t0
+    _, dt = time_chunk(program, initial_rows(program, sweep), iterations)
     steps = iterations * base.ppo.batch_size * runs
     return {"env": env, "policy": policy, "runs": runs, "seeds": seeds, "points": points,
             "num_envs_per_run": base.ppo.num_envs, "iterations": iterations,

@@ -12,8 +12,8 @@ import jax
 import jax.numpy as jnp
 
 import envs
-from agents.ppo import make_mesh
-from agents.run.program import build, profile_iteration, seed_keys
+from agents.ppo import TrainState, make_mesh
+from agents.run.program import Program, build, profile_iteration, seed_keys
 from agents.run.spec import RunSpec, preset
 from envs.evaluate import hand_designed_policy
 from envs.wrappers import wrap
@@ -71,6 +71,17 @@ def measure_env(env_name: str, policy: str, batch: int, steps: int, repeats: int
     }
 
 
+def time_chunk(program: Program, state: TrainState, iterations: int
+               ) -> tuple[TrainState, float]:
+    """``(state after two chunks, seconds of the second)``: the compiled chunk of
+    ``iterations`` iterations of ``program`` run once as a warm-up, then timed."""
+    exe = program.executable(jax.block_until_ready(state), iterations)
+    state, _ = jax.block_until_ready(exe(state))
+    t0 = time.perf_counter()
+    state, _ = jax.block_until_ready(exe(state))
+    return state, time.perf_counter() - t0
+
+
 def measure_ppo(env_name: str, policy: str, devices: int, iterations: int, seeds: int,
                 preset_name: str, num_envs: int | None = None, split: bool = True) -> dict:
     """PPO training throughput: environment steps/s of a compiled chunk of ``iterations``
@@ -81,12 +92,7 @@ def measure_ppo(env_name: str, policy: str, devices: int, iterations: int, seeds
     spec = RunSpec(env=env_name, policy=policy, seeds=tuple(range(seeds)),
                    ppo=preset(preset_name, **overrides))
     program = build(spec, make_mesh(devices))
-    state = jax.block_until_ready(program.init(seed_keys(spec.seeds)))
-    exe = program.executable(state, iterations)
-    state, _ = jax.block_until_ready(exe(state))
-    t0 = time.perf_counter()
-    state, _ = jax.block_until_ready(exe(state))
-    dt = time.perf_counter() - t0
+    state, dt = time_chunk(program, program.init(seed_keys(spec.seeds)), iterations)
     steps = iterations * spec.ppo.batch_size * seeds
     row = {"env": env_name, "policy": policy, "devices": devices, "seeds": seeds,
            "preset": preset_name, "num_envs": spec.ppo.num_envs, "iterations": iterations,
@@ -98,4 +104,4 @@ def measure_ppo(env_name: str, policy: str, devices: int, iterations: int, seeds
     return row
 
 
-__all__ = ["env_runner", "measure_env", "measure_ppo"]
+__all__ = ["env_runner", "measure_env", "measure_ppo", "time_chunk"]
