@@ -58,12 +58,15 @@ def main(argv: list[str] | None = None) -> int:
                    help="curves average over the trailing iterations holding at least this many "
                         "episodes (RLlib's 100-episode smoothing; 1: per iteration)")
     p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-profile", action="store_true",
+                   help="skip timing one iteration's phases into speed.json (it compiles them)")
     args = p.parse_args(argv)
     try:
         reproduce(args.stage, args.runs, args.figures, args.smooth, envs=args.envs,
                   policies=args.policies, seeds=args.seeds, preset_name=args.preset,
                   iterations=args.iterations, log_every=args.log_every,
-                  checkpoint_every=args.checkpoint_every, progress=not args.no_progress)
+                  checkpoint_every=args.checkpoint_every, progress=not args.no_progress,
+                  profile=not args.no_profile)
     except FileNotFoundError as e:
         raise SystemExit(str(e)) from None
     return 0

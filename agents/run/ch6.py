@@ -52,22 +52,49 @@ def run_dir(runs: str, env: str, policy: str) -> str:
     return os.path.join(runs, f"{env.replace('/', '-')}_{policy}")
 
 
-def _train_one(spec: RunSpec, out: str, resume: bool, progress: bool) -> dict[str, Any]:
-    """Train (or resume) one run; its speed record (also written to ``out/speed.json``)."""
+def _segment(start: int | None, wall: float, **fields: Any) -> dict[str, Any]:
+    return {"from_iteration": int(start or 0), "wall_s": wall,
+            "device": str(jax.devices()[0].device_kind), "date": time.strftime("%Y-%m-%d"),
+            **fields}
+
+
+def _train_one(spec: RunSpec, out: str, resume: bool, progress: bool,
+               profile: bool = True) -> dict[str, Any]:
+    """Train (or resume) one run; its speed record (also written to ``out/speed.json``). Every
+    launch that trains the run, an interrupted one included, adds a segment to the record's
+    ``segments``; ``wall_s`` and ``compile_s`` sum them, ``steps_per_s`` is the last segment's.
+    ``profile``: also time one iteration's phases (``iteration_split_s``; compiles them anew)."""
+    path = os.path.join(out, "speed.json")
+    segments: list[dict[str, Any]] = []
+    if resume and os.path.exists(path):
+        with open(path) as f:
+            segments = json.load(f).get("segments", [])
+    ckpts = os.path.join(out, "checkpoints")
+    start = checkpoint.latest_step(ckpts) if resume else None
     t0 = time.perf_counter()
-    result = run_training(spec, out, resume=resume, progress=progress)
-    wall = time.perf_counter() - t0
+    try:
+        result = run_training(spec, out, resume=resume, progress=progress)
+    except KeyboardInterrupt:
+        segments.append(_segment(start, time.perf_counter() - t0, interrupted=True,
+                                 to_iteration=int(checkpoint.latest_step(ckpts) or 0)))
+        with open(path, "w") as f:
+            json.dump({"env": spec.env, "policy": spec.policy, "segments": segments}, f,
+                      indent=1)
+        raise
+    done = int(result.history["mean_reward"].shape[1])
+    segments.append(_segment(start, time.perf_counter() - t0, to_iteration=done,
+                             compile_s=result.compile_seconds, train_s=result.train_seconds))
+    last = segments[-1]
+    steps = (done - last["from_iteration"]) * spec.ppo.batch_size * len(spec.seeds)
     speed = {
-        "env": spec.env, "policy": spec.policy, "seeds": list(spec.seeds),
-        "iterations": int(result.history["mean_reward"].shape[1]),
-        "env_steps": result.env_steps, "compile_s": result.compile_seconds,
-        "train_s": result.train_seconds, "wall_s": wall,
-        "steps_per_s": result.env_steps / max(result.train_seconds, 1e-9),
-        "iteration_split_s": profile_iteration(build(spec), result.state),
-        "device": str(jax.devices()[0].device_kind),
-        "date": time.strftime("%Y-%m-%d"),
+        "env": spec.env, "policy": spec.policy, "seeds": list(spec.seeds), "iterations": done,
+        "env_steps": result.env_steps, "wall_s": sum(s["wall_s"] for s in segments),
+        "compile_s": sum(s.get("compile_s", 0.0) for s in segments),
+        "steps_per_s": steps / max(result.train_seconds, 1e-9),
+        "iteration_split_s": profile_iteration(build(spec), result.state) if profile else None,
+        "device": last["device"], "date": last["date"], "segments": segments,
     }
-    with open(os.path.join(out, "speed.json"), "w") as f:
+    with open(path, "w") as f:
         json.dump(speed, f, indent=1)
     return speed
 
@@ -75,8 +102,9 @@ def _train_one(spec: RunSpec, out: str, resume: bool, progress: bool) -> dict[st
 def train_all(runs: str, envs: Sequence[str] = ENVS, policies: Sequence[str] = POLICIES,
               seeds: Sequence[int] = (0, 1, 2, 3), preset_name: str = "thesis",
               iterations: int | None = None, log_every: int = 25, checkpoint_every: int = 100,
-              progress: bool = True) -> None:
-    """The ``train`` stage (see the module docstring)."""
+              progress: bool = True, profile: bool = True) -> None:
+    """The ``train`` stage (see the module docstring); ``profile=False`` skips the per-phase
+    timing of one iteration in ``speed.json``."""
     overrides = {} if iterations is None else {"total_iterations": iterations}
     for env in envs:
         for policy in policies:
@@ -91,7 +119,7 @@ def train_all(runs: str, envs: Sequence[str] = ENVS, policies: Sequence[str] = P
             print(f"== {policy} on {env}: {len(spec.seeds)} seeds × "
                   f"{spec.ppo.total_iterations} iterations × {spec.ppo.batch_size} steps",
                   file=sys.stderr)
-            speed = _train_one(spec, out, step is not None, progress)
+            speed = _train_one(spec, out, step is not None, progress, profile)
             print(json.dumps(speed), file=sys.stderr)
 
 
