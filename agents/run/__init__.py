@@ -14,5 +14,6 @@
 * :mod:`agents.run.export` — a policy as a standalone :mod:`jax.export` blob;
 * :mod:`agents.run.sim2sim` / :mod:`agents.run.sim2sim_mujoco` — an exported policy in MuJoCo's
   own simulator next to the MJX evaluation of the same scenes;
-* :mod:`agents.run.ch6` — the chapter-6 study (train every policy class, Figs 6.2–6.4).
+* :mod:`agents.run.ch6` — the chapter-6 study (train every policy class, Figs 6.2–6.4);
+  :mod:`agents.run.ch6_study` — its hand-designed baseline, study record and stages.
 """

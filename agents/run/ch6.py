@@ -1,9 +1,8 @@
 """Thesis chapter 6: PPO with NN, NN-residual and RMP-residual policies on the 3-link reaching
 setups env1/env2/env3 and the Franka, several seeds each; Fig 6.2 (mean episode reward), Fig 6.3
 (safe-episode %) and Fig 6.4 (Franka), mean ± 1 std over seeds. ``scripts/reproduce_ch6.py``
-calls :func:`reproduce`.
-
-Two stages, each resumable:
+calls :func:`agents.run.ch6_study.reproduce`, which adds the hand-designed baseline and the
+study record. Two stages live here, each resumable:
 
 * ``train`` (:func:`train_all`) — for every (environment, policy) pair, a run directory
   ``<runs>/<env>_<policy>`` trained by :func:`agents.run.training.run_training` (all seeds in one
@@ -37,6 +36,7 @@ from agents.run.logs import nanmean, read_csv
 from agents.run.program import build, profile_iteration
 from agents.run.spec import RunSpec, preset
 from agents.run.training import run_training
+from mjxrmp.results.summary import package_versions
 
 THREE_LINK = ("three_link/env1", "three_link/env2", "three_link/env3")
 ENVS = (*THREE_LINK, "franka")
@@ -55,7 +55,7 @@ def run_dir(runs: str, env: str, policy: str) -> str:
 def _segment(start: int | None, wall: float, **fields: Any) -> dict[str, Any]:
     return {"from_iteration": int(start or 0), "wall_s": wall,
             "device": str(jax.devices()[0].device_kind), "date": time.strftime("%Y-%m-%d"),
-            **fields}
+            "versions": package_versions(), **fields}
 
 
 def _train_one(spec: RunSpec, out: str, resume: bool, progress: bool,
@@ -135,7 +135,7 @@ def load_runs(runs: str) -> dict[tuple[str, str], dict[str, np.ndarray]]:
 
 
 def _panel(ax: Any, runs: dict, env: str, key: str, scale: float, smooth: int,
-           ylabel: str) -> None:
+           ylabel: str, baseline: float | None = None) -> None:
     for policy in LABELS:
         if (env, policy) not in runs:
             continue
@@ -145,6 +145,9 @@ def _panel(ax: Any, runs: dict, env: str, key: str, scale: float, smooth: int,
         std = np.sqrt(np.maximum(nanmean((v - mean) ** 2, axis=0), 0.0))
         ax.plot(it, mean, color=COLORS[policy], label=LABELS[policy], lw=1.4)
         ax.fill_between(it, mean - std, mean + std, color=COLORS[policy], alpha=0.2, lw=0)
+    if baseline is not None:
+        ax.axhline(baseline, color=COLORS["hand_designed"], ls="--", lw=1.2,
+                   label=LABELS["hand_designed"])
     ax.set_xlabel("iteration")
     ax.set_ylabel(ylabel)
     if scale == 100.0:
@@ -152,9 +155,19 @@ def _panel(ax: Any, runs: dict, env: str, key: str, scale: float, smooth: int,
     ax.grid(alpha=0.3)
 
 
-def plot_figures(runs: dict, figures: str, smooth: int) -> None:
+def plot_figures(runs: dict, figures: str, smooth: int,
+                 baselines: dict[str, Any] | None = None) -> None:
     """``fig6_2.png`` (reward) and ``fig6_3.png`` (safe %) over the 3-link setups and, when a
-    Franka run exists, ``fig6_4.png``."""
+    Franka run exists, ``fig6_4.png``; ``baselines`` (``{env: {"mean_return", "safe_pct"}}``,
+    the hand-designed policy) are drawn as dashed lines."""
+    baselines = baselines or {}
+
+    def level(env: str, key: str) -> float | None:
+        b = baselines.get(env)
+        if b is None:
+            return None
+        return b["mean_return"] if key == "mean_episode_return" else b["safe_pct"]
+
     import matplotlib  # lazy: optional dependency (the "plots" extra)
 
     matplotlib.use("Agg")
@@ -165,7 +178,7 @@ def plot_figures(runs: dict, figures: str, smooth: int) -> None:
     for name, (key, scale, ylabel) in (("fig6_2.png", reward), ("fig6_3.png", safe)):
         fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
         for ax, env in zip(axes, THREE_LINK, strict=True):
-            _panel(ax, runs, env, key, scale, smooth, ylabel)
+            _panel(ax, runs, env, key, scale, smooth, ylabel, level(env, key))
             ax.set_title(env.split("/")[1])
         axes[0].legend(fontsize=8)
         fig.tight_layout()
@@ -174,7 +187,7 @@ def plot_figures(runs: dict, figures: str, smooth: int) -> None:
     if any(env == "franka" for env, _ in runs):
         fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
         for ax, (key, scale, ylabel) in zip(axes, (reward, safe), strict=True):
-            _panel(ax, runs, "franka", key, scale, smooth, ylabel)
+            _panel(ax, runs, "franka", key, scale, smooth, ylabel, level("franka", key))
         axes[0].legend(fontsize=8)
         fig.suptitle("Franka reaching")
         fig.tight_layout()
@@ -218,14 +231,16 @@ def _print_rows(summary: dict[str, Any]) -> None:
         print(f"env3 final reward rmp_residual / nn = {summary['env3_rmp_residual_over_nn']:.2f}")
 
 
-def plot_all(runs_dir: str, figures: str, smooth: int) -> dict[str, Any]:
-    """The ``plot`` stage: figures, ``ch6_summary.csv``/``.json`` and the printed table;
-    returns the summary. Raises ``FileNotFoundError`` when no run has a metrics.csv."""
+def plot_all(runs_dir: str, figures: str, smooth: int,
+             baselines: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The ``plot`` stage: figures (with the hand-designed ``baselines`` where given),
+    ``ch6_summary.csv``/``.json`` and the printed table; returns the summary. Raises
+    ``FileNotFoundError`` when no run has a metrics.csv."""
     runs = load_runs(runs_dir)
     if not runs:
         raise FileNotFoundError(f"no runs with metrics.csv under {runs_dir}")
     os.makedirs(figures, exist_ok=True)
-    plot_figures(runs, figures, smooth)
+    plot_figures(runs, figures, smooth, baselines)
     rows = [summary_row(env, policy, h) for (env, policy), h in sorted(runs.items())]
     with open(os.path.join(figures, "ch6_summary.csv"), "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
@@ -243,16 +258,5 @@ def plot_all(runs_dir: str, figures: str, smooth: int) -> dict[str, Any]:
     return summary
 
 
-def reproduce(stage: str, runs: str, figures: str, smooth: int = 100,
-              **train: Any) -> dict[str, Any] | None:
-    """Run the ``train`` and/or ``plot`` stage (``stage``: ``all``, ``train`` or ``plot``);
-    ``train`` holds :func:`train_all`'s settings. Returns the summary of the plot stage."""
-    if stage in ("all", "train"):
-        train_all(runs, **train)
-    if stage in ("all", "plot"):
-        return plot_all(runs, figures, smooth)
-    return None
-
-
 __all__ = ["COLORS", "ENVS", "LABELS", "POLICIES", "THREE_LINK", "load_runs", "plot_all",
-           "plot_figures", "reproduce", "run_dir", "summary_row", "train_all"]
+           "plot_figures", "run_dir", "summary_row", "train_all"]
