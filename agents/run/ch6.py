@@ -36,7 +36,7 @@ from agents.run.logs import nanmean, read_csv
 from agents.run.program import build, profile_iteration
 from agents.run.spec import RunSpec, preset
 from agents.run.training import run_training
-from mjxrmp.results.summary import package_versions
+from mjxrmp.results.summary import package_versions, write_text
 
 THREE_LINK = ("three_link/env1", "three_link/env2", "three_link/env3")
 ENVS = (*THREE_LINK, "franka")
@@ -77,9 +77,8 @@ def _train_one(spec: RunSpec, out: str, resume: bool, progress: bool,
     except KeyboardInterrupt:
         segments.append(_segment(start, time.perf_counter() - t0, interrupted=True,
                                  to_iteration=int(checkpoint.latest_step(ckpts) or 0)))
-        with open(path, "w") as f:
-            json.dump({"env": spec.env, "policy": spec.policy, "segments": segments}, f,
-                      indent=1)
+        write_text(path, json.dumps({"env": spec.env, "policy": spec.policy,
+                                     "segments": segments}, indent=1))
         raise
     done = int(result.history["mean_reward"].shape[1])
     segments.append(_segment(start, time.perf_counter() - t0, to_iteration=done,
@@ -94,8 +93,7 @@ def _train_one(spec: RunSpec, out: str, resume: bool, progress: bool,
         "iteration_split_s": profile_iteration(build(spec), result.state) if profile else None,
         "device": last["device"], "date": last["date"], "segments": segments,
     }
-    with open(path, "w") as f:
-        json.dump(speed, f, indent=1)
+    write_text(path, json.dumps(speed, indent=1))
     return speed
 
 

@@ -42,8 +42,7 @@ def evaluate_baselines(runs: str, envs: Sequence[str] = ENVS, episodes: int = 10
     ``episodes`` episodes (scenes from ``seed``) on each setup, merged into
     ``<runs>/hand_designed.json`` (other setups already there are kept); returns the file's
     content."""
-    path = os.path.join(runs, BASELINES)
-    out = json.loads(Path(path).read_text()) if os.path.exists(path) else {}
+    out = load_baselines(runs)
     command = (f"python scripts/reproduce_ch6.py --stage baseline --envs {' '.join(envs)} "
                f"--baseline-episodes {episodes}")
     for env in envs:
@@ -53,7 +52,7 @@ def evaluate_baselines(runs: str, envs: Sequence[str] = ENVS, episodes: int = 10
               f"{stats['safe_pct']:.1f} %, success {stats['success_pct']:.1f} % "
               f"({episodes} episodes)")
     os.makedirs(runs, exist_ok=True)
-    write_text(path, json.dumps(out, indent=1) + "\n")
+    write_text(os.path.join(runs, BASELINES), json.dumps(out, indent=1) + "\n")
     return out
 
 
