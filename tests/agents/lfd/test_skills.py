@@ -39,12 +39,11 @@ from mjxrmp.robots import franka as franka_robot
 REPO = Path(__file__).resolve().parents[3]
 LOADER = REPO / "scripts" / "load_policy.py"
 HAVE_FRANKA = os.path.isdir(fd.DEFAULT_ROOT)
-#: The standalone artifact against the in-process compiled velocity (acceptance: ≤ 1e-6). The
-#: Franka execution form resolves eq 5.1 with ε = 0.02, which amplifies float32 rounding: its
-#: own in-process values move by ~6e-6 between batch sizes 1 and 9 (1e-5 from float64), and
-#: the artifact's compile of the symbolic batch by ~3e-6; there the artifact is checked bitwise
-#: against itself run in this process and to 1e-5 against the compiled velocity.
-TOL = {"lasa": dict(rtol=0.0, atol=1e-6), "franka": dict(rtol=0.0, atol=1e-5)}
+#: The standalone artifact against the in-process compiled velocity on the same batch
+#: (acceptance: ≤ 1e-6; measured ≤ 1.6e-7 on jax 0.10 and 0.12). The Franka float32 policy
+#: itself moves by up to 2e-6 between batch sizes 1 and 9 (the ε = 0.02 resolve of eq 5.1
+#: amplifies rounding), so both sides are evaluated on the same batch.
+ATOL = 1e-6
 
 
 @pytest.fixture(scope="module")
@@ -176,7 +175,7 @@ def _check_export(skill, path: Path, x: np.ndarray, tmp_path: Path, cli: bool) -
     v = np.load(tmp_path / "v.npy")
     exported = jax.export.deserialize(bytearray(blob.read_bytes()))
     np.testing.assert_array_equal(v, np.asarray(jax.jit(exported.call)(x)))
-    np.testing.assert_allclose(v, np.asarray(skill.velocity(x)), **TOL[skill.kind])
+    np.testing.assert_allclose(v, np.asarray(skill.velocity(x)), rtol=0.0, atol=ATOL)
 
 
 def test_exported_lasa_skill_runs_without_the_project(lasa, tmp_path):
