@@ -43,6 +43,12 @@ def where_done(done: jax.Array, new: Any, old: Any) -> Any:
     return jax.tree.map(sel, new, old)
 
 
+#: Backends on which :meth:`AutoResetWrapper.step` computes the reset only when an episode ended
+#: (a conditional; on a GPU its per-step predicate read-back made PPO rollouts slower: H100,
+#: three_link/env3 0.39 s against 0.28 s per 512-step rollout).
+CONDITIONAL_RESET_BACKENDS = ("cpu",)
+
+
 class ResetPool(NamedTuple):
     """The next ``depth`` episode starts of every environment, computed ahead
     (:meth:`AutoResetWrapper.reset_pool`): ``starts`` has leading axes ``(depth, B)``;
@@ -64,11 +70,16 @@ class AutoResetWrapper(Wrapper):
     replaced; brax's episode bookkeeping (:data:`EPISODE_KEYS`), ``reward``,
     ``done`` and ``metrics`` of the terminal step are kept, as in brax.
 
-    :meth:`step` computes that reset for every environment at every step and selects it where
-    an episode ended. The key of an environment's next episode is fixed when its current
-    episode starts, so its next starts can also be computed ahead, once for many steps
-    (:meth:`reset_pool`), and taken in turn by :meth:`step_from_pool`: the same states, without
-    a reset per step (docs/design.md §5.7).
+    :meth:`step` computes a reset for every environment and selects it where an episode ended.
+    On backends in :data:`CONDITIONAL_RESET_BACKENDS` (the CPU) it computes that reset only at
+    steps where some environment finished (a ``lax.cond`` on "any episode ended"; with
+    ``axis_name``, the name of an enclosing ``vmap``, over all of its rows too, so the
+    conditional stays a branch instead of becoming a select of both sides). On a GPU a
+    conditional reads its predicate back to the host at every step, which costs more than the
+    reset (docs/design.md §5.7). The key of an environment's next episode
+    is fixed when its current episode starts, so its next starts can also be computed ahead,
+    once for many steps (:meth:`reset_pool`), and taken in turn by :meth:`step_from_pool`: the
+    same states (docs/design.md §5.7).
     """
 
     def _advance(self, state: State, action: jax.Array) -> State:
@@ -94,10 +105,26 @@ class AutoResetWrapper(Wrapper):
             info=info,
         )
 
-    def step(self, state: State, action: jax.Array) -> State:
-        """Step every environment; finished episodes restart from a freshly sampled scene."""
-        state = self._advance(state, action)
+    def _reset_done(self, state: State) -> State:
         return self._restart(state, self.env.reset(state.info["rng"]))
+
+    def step(self, state: State, action: jax.Array, axis_name: str | None = None) -> State:
+        """Step every environment; finished episodes restart from a freshly sampled scene (on
+        the CPU computed only when an episode ended in the batch or, with ``axis_name``, in any
+        row of the enclosing ``vmap`` of that name)."""
+        if jax.default_backend() not in CONDITIONAL_RESET_BACKENDS:
+            return self.step_resetting_always(state, action)
+        state = self._advance(state, action)
+        ended = jnp.any(state.done > 0)
+        if axis_name is not None:
+            ended = jax.lax.pmax(ended, axis_name)
+        return jax.lax.cond(ended, self._reset_done, lambda s: s, state)
+
+    def step_resetting_always(self, state: State, action: jax.Array) -> State:
+        """:meth:`step` with the reset computed for every environment at every step and selected
+        where an episode ended (the same states; the reference the conditional is measured and
+        tested against)."""
+        return self._reset_done(self._advance(state, action))
 
     def reset_pool(self, state: State, depth: int) -> ResetPool:
         """The next ``depth`` episode starts of every environment of ``state``: the first from
@@ -193,4 +220,5 @@ class RMPInEnv(Wrapper):
         return self.env.step(state, self.joint_acceleration(state, action))
 
 
-__all__ = ["EPISODE_KEYS", "AutoResetWrapper", "RMPInEnv", "ResetPool", "where_done", "wrap"]
+__all__ = ["CONDITIONAL_RESET_BACKENDS", "EPISODE_KEYS", "AutoResetWrapper", "RMPInEnv",
+           "ResetPool", "where_done", "wrap"]

@@ -10,8 +10,10 @@ reported per control step:
   iteration (``contact_free_1iter``): the floor the environment is compared with;
 * ``env_step_raw`` — the environment's own ``step`` (PD scheme, geometry, reward, observation)
   with a zero action, no wrappers;
-* ``env_step`` — the training ``envs.wrappers.wrap`` step (episode limit and auto-reset, a
-  fresh reset for every environment at every step);
+* ``env_step`` — the training ``envs.wrappers.wrap`` step (episode limit and auto-reset,
+  computed only at steps where an episode ended);
+* ``env_step_reset_always`` — the same with the reset computed for every environment at every
+  step and selected where an episode ended (the auto-reset before the conditional);
 * ``env_step_pooled`` — the same, restarting from reset pools made every
   :data:`agents.ppo.rollout.POOL_BLOCK` steps, as the PPO rollout does;
 * ``reset`` — one full ``reset`` of every environment (scene sampling with rejection);
@@ -121,6 +123,8 @@ def phase_programs(env_name: str, batch: int, steps: int, key: jax.Array
     out["env_step_raw"] = lambda: raw(state)
     stepped = _scan(lambda s: wrapped.step(s, zero), steps)
     out["env_step"] = lambda: stepped(wstate)
+    always = _scan(lambda s: wrapped.step_resetting_always(s, zero), steps)
+    out["env_step_reset_always"] = lambda: always(wstate)
     block = pool_block(steps) or steps
 
     def pooled_block(s):

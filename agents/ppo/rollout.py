@@ -34,23 +34,27 @@ def pool_block(num_steps: int, block: int = POOL_BLOCK) -> int | None:
 
 
 def make_rollout(env: Env, nets: PPONetworks, num_steps: int, constrain: Callable[..., Any],
-                 seed_axis: str | None = None
+                 seed_axis: str | None = None, reset_pools: bool = False
                  ) -> Callable[[TrainState, jax.Array], tuple[TrainState, Transition]]:
     """``rollout(ts, key) -> (ts, transitions)``: ``num_steps`` steps of the batched,
     auto-resetting ``env`` with actions sampled from the policy; ``transitions`` is time-major
     ``(num_steps, num_envs, ...)``. ``constrain`` places the environment batch on the mesh
     (:func:`agents.ppo.sharding.batch_axis_sharding`).
 
-    With ``seed_axis`` (the ``axis_name`` of the ``vmap`` over seeds around the trainer) and an
-    :class:`envs.wrappers.AutoResetWrapper` environment the steps run in blocks of
-    :func:`pool_block` steps, each restarting finished episodes from a :class:`~envs.wrappers.
-    ResetPool` of :data:`POOL_DEPTH` starts made at the block's beginning instead of a reset
-    computed at every step; a block in which some environment (of any seed) finishes more
-    episodes than that is run again with per-step resets. Both give the same transitions; the
-    axis name lets every seed take the same branch, so the redo is a real conditional.
+    ``seed_axis`` is the ``axis_name`` of the ``vmap`` over seeds around the trainer (None when
+    there is none). With an :class:`envs.wrappers.AutoResetWrapper` environment a step computes
+    the reset only when an episode ended in some environment of some seed: the axis name lets
+    every seed take the same branch, so it is a real conditional (docs/design.md §5.7). With
+    ``reset_pools`` as well, the steps run in blocks of :func:`pool_block` steps, each
+    restarting finished episodes from a :class:`~envs.wrappers.ResetPool` of
+    :data:`POOL_DEPTH` starts made at the block's beginning; a block in which some environment
+    (of any seed) finishes more episodes than that is run again step by step. All give the
+    same transitions.
     """
-    block = pool_block(num_steps) if seed_axis is not None else None
-    pooled = block is not None and isinstance(env, AutoResetWrapper)
+    auto_reset = isinstance(env, AutoResetWrapper)
+    block = pool_block(num_steps) if seed_axis is not None and reset_pools else None
+    pooled = block is not None and auto_reset
+    axis = {"axis_name": seed_axis} if auto_reset and seed_axis is not None else {}
 
     def act(carry, key, advance):
         params, stats, state, ep_ret, ep_col = carry
@@ -75,7 +79,7 @@ def make_rollout(env: Env, nets: PPONetworks, num_steps: int, constrain: Callabl
 
     def plain(carry, keys):
         def body(c, key):
-            c, tr, _ = act(c, key, lambda s, a: (env.step(s, a), None))
+            c, tr, _ = act(c, key, lambda s, a: (env.step(s, a, **axis), None))
             return c, tr
         return jax.lax.scan(body, carry, keys)
 

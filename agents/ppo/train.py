@@ -132,6 +132,7 @@ def make_trainer(
     config: PPOConfig | None = None,
     mesh: Mesh | None = None,
     seed_axis: str | None = None,
+    reset_pools: bool = False,
 ) -> Trainer:
     """The PPO program for a single (un-batched) brax environment; see :class:`Trainer`.
 
@@ -155,9 +156,10 @@ def make_trainer(
 
     ``seed_axis``: the ``axis_name`` of a ``jax.vmap`` over seeds that the caller puts around
     ``init``/``run``/``rollout`` (e.g. ``jax.vmap(trainer.run, axis_name=seed_axis)``); with it
-    the rollout restarts finished episodes from reset pools computed once per block of steps
-    (:func:`agents.ppo.rollout.make_rollout`, same transitions). Leave it None when the trainer
-    is not vmapped under that name.
+    a rollout step computes the auto-reset only when some seed's episode ended, and with
+    ``reset_pools`` the rollout restarts finished episodes from reset pools computed once per
+    block of steps (:func:`agents.ppo.rollout.make_rollout`; same transitions). Leave it None
+    when the trainer is not vmapped under that name.
     """
     config = _check_arguments(policy, config, mesh)
     batched = env if isinstance(env, AutoResetWrapper) else wrap(env, config.episode_length)
@@ -165,7 +167,8 @@ def make_trainer(
     tx = make_optimizer(config)
     constrain = batch_axis_sharding(mesh, config.num_envs)
     init = _make_init(batched, nets, tx, config, int(env.observation_size), constrain)
-    rollout = make_rollout(batched, nets, config.rollout_length, constrain, seed_axis)
+    rollout = make_rollout(batched, nets, config.rollout_length, constrain, seed_axis,
+                           reset_pools)
     update = make_update(nets, tx, config, mesh)
 
     def iteration(ts, _):

@@ -20,8 +20,8 @@ from agents.ppo import PPOConfig, Trainer, TrainState, make_env_and_policy, make
 from agents.run.program_cache import exported
 from agents.run.spec import RunSpec
 
-#: The ``axis_name`` of the vmap over seeds (lets the rollout's reset pools take one branch for
-#: all seeds: :func:`agents.ppo.make_trainer`).
+#: The ``axis_name`` of the vmap over seeds (lets the rollout's auto-reset and reset pools take
+#: one branch for all seeds: :func:`agents.ppo.make_trainer`).
 SEED_AXIS = "seeds"
 
 
@@ -80,8 +80,8 @@ class Program:
 def _program(env: str, policy: str, ppo: PPOConfig, mesh: Mesh | None,
              reset_pools: bool) -> Program:
     env_obj, module = make_env_and_policy(env, policy)
-    trainer = make_trainer(env_obj, module, ppo, mesh,
-                           seed_axis=SEED_AXIS if reset_pools else None)
+    trainer = make_trainer(env_obj, module, ppo, mesh, seed_axis=SEED_AXIS,
+                           reset_pools=reset_pools)
     init = jax.jit(jax.vmap(trainer.init, axis_name=SEED_AXIS))
     run = jax.jit(jax.vmap(trainer.run, in_axes=(0, None), axis_name=SEED_AXIS),
                   static_argnums=1)
@@ -122,7 +122,9 @@ def profile_iteration(program: Program, state: TrainState, repeats: int = 3) -> 
     (the policy alone — RMP² included — on the rollout's ``rollout_length × num_envs``
     observations), ``update`` (GAE + every epoch and minibatch, RMP² backprop included) and
     ``rollout_reset_pools`` (the same rollout restarting episodes from reset pools:
-    :func:`agents.ppo.make_trainer`). Does not change ``state``."""
+    :func:`agents.ppo.make_trainer`) and ``rollout_reset_always`` (the reset computed at every
+    step and selected, the rollout without the conditional auto-reset). Does not change
+    ``state``."""
     trainer = program.trainer
     n = trainer.config.rollout_length
     keys = jnp.broadcast_to(jax.random.PRNGKey(0), (state.iteration.shape[0], 2))
@@ -137,10 +139,12 @@ def profile_iteration(program: Program, state: TrainState, repeats: int = 3) -> 
         return jax.lax.scan(body, 0, obs)[1]
 
     forward = jax.jit(jax.vmap(forward))
-    pooled = make_trainer(trainer.env, trainer.policy, trainer.config, seed_axis=SEED_AXIS)
-    pooled_rollout = jax.jit(jax.vmap(pooled.rollout, axis_name=SEED_AXIS))
+    variants = {name: jax.jit(jax.vmap(make_trainer(
+        trainer.env, trainer.policy, trainer.config, seed_axis=axis, reset_pools=pools).rollout,
+        axis_name=SEED_AXIS)) for name, axis, pools in (
+        ("rollout_reset_pools", SEED_AXIS, True), ("rollout_reset_always", None, False))}
     pieces = {"rollout": lambda: rollout(state, keys),
-              "rollout_reset_pools": lambda: pooled_rollout(state, keys),
+              **{name: functools.partial(fn, state, keys) for name, fn in variants.items()},
               "policy_forward": lambda: forward(state, tr.obs[:, :n]),
               "update": lambda: update(state, tr, keys)}
     return {name: _median_seconds(fn, repeats) for name, fn in pieces.items()}

@@ -38,7 +38,8 @@ def test_contact_free_model_disables_the_constraint_stages():
 
 #: Every phase :func:`profile_env` times by default.
 ALL_PHASES = {f"physics_{v}" for v in PHYSICS_VARIANTS} | {
-    "env_step_raw", "env_step", "env_step_pooled", "reset", "observe", "rmp2_policy"}
+    "env_step_raw", "env_step", "env_step_reset_always", "env_step_pooled", "reset", "observe",
+    "rmp2_policy"}
 
 
 def _profile_is_written_as_a_study(tmp_path, phases: set[str] | None) -> None:

@@ -109,23 +109,26 @@ def test_pooled_ppo_run_matches():
     """Two seeds vmapped, 2 PPO iterations of 16 steps (one block each), episodes of 6 steps:
     the first rollout restarts every environment twice from its pool, the second needs three
     restarts, overflows and is redone with per-step resets. Metrics, parameters and the final
-    environments equal the plain trainer's."""
+    environments equal the plain trainer's (no axis name: the reset computed at every step and
+    selected), and so do those of the conditional reset (axis name, no pools)."""
     cfg = dataclasses.replace(PPOConfig(), num_envs=8, rollout_length=16, num_minibatches=2,
                               update_epochs=1, episode_length=6)
     env, module = make_env_and_policy("three_link/env3", "nn")
     keys = jax.random.split(jax.random.PRNGKey(0), 2)
     out = []
-    for axis in (None, AXIS):
-        tr = make_trainer(env, module, cfg, seed_axis=axis)
+    for axis, pools in ((None, False), (AXIS, True), (AXIS, False)):
+        tr = make_trainer(env, module, cfg, seed_axis=axis, reset_pools=pools)
         init = jax.jit(jax.vmap(tr.init, axis_name=AXIS))
         run = jax.jit(jax.vmap(tr.run, in_axes=(0, None), axis_name=AXIS), static_argnums=1)
-        if axis is not None:
-            jaxpr = str(jax.make_jaxpr(jax.vmap(tr.rollout, axis_name=AXIS))(
-                init(keys), keys))
-            assert "cond[" in jaxpr and "pmax" in jaxpr  # the pooled path is the one compiled
+        jaxpr = str(jax.make_jaxpr(jax.vmap(tr.rollout, axis_name=AXIS))(
+            jax.eval_shape(init, keys), keys))
+        # the compiled path: no branch / a conditional reset per step / pools + redo branch
+        assert jaxpr.count("cond[") == jaxpr.count("pmax") == (0 if axis is None else
+                                                               1 + pools)
         out.append(run(init(keys), 2))
-    (ts_a, m_a), (ts_b, m_b) = out
+    (ts_a, m_a), *others = out
     assert float(np.sum(np.asarray(m_a["episodes"]))) > 0
-    _close(m_a, m_b)
-    _close(ts_a.params, ts_b.params)
-    _close(ts_a.env_state.obs, ts_b.env_state.obs)
+    for ts_b, m_b in others:
+        _close(m_a, m_b)
+        _close(ts_a.params, ts_b.params)
+        _close(ts_a.env_state.obs, ts_b.env_state.obs)
