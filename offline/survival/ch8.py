@@ -208,9 +208,13 @@ def data_path(args: Any, recipe: str, cut: bool) -> Path:
 
 
 def collect_stage(args: Any) -> None:
-    """Collect (or find cached) the cut and full datasets of every recipe."""
+    """Collect (or find cached) the cut and full datasets of every recipe that ``--datasets``
+    uses (both of every recipe by default; a filtered or deadline dataset uses its base)."""
+    used = {split_name(name)[:2] for name in args.datasets}
     for name in base_datasets(args.recipes):
         recipe, cut, _ = split_name(name)
+        if (recipe, cut) not in used:
+            continue
         collect_cached(data_path(args, recipe, cut), ENV, recipe, args.scale, args.data_seed,
                        name, cut_at_collision=cut, ppo_run=args.ppo_run, ppo_step=args.ppo_step,
                        env_kwargs=env_kwargs(args))
