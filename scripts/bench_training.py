@@ -9,6 +9,7 @@ Examples::
 
     python scripts/bench_training.py --runs three_link/env3:rmp_residual franka:rmp_residual
     python scripts/bench_training.py --preset cpu --iterations 2 --out /tmp/speed
+    python scripts/bench_training.py --first-iteration-only --warm-runs 3 --out /tmp/first
 """
 
 from __future__ import annotations
@@ -45,6 +46,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=ROOT / "results" / "training_speed")
     p.add_argument("--no-first-iteration", dest="first", action="store_false",
                    help="time only the whole run, not the repeated one-iteration command")
+    p.add_argument("--first-iteration-only", dest="full", action="store_false",
+                   help="time only the repeated one-iteration command, not the whole run")
+    p.add_argument("--warm-runs", type=int, default=1, metavar="N",
+                   help="repeat the one-iteration command N times with the warm cache (the "
+                        "median is reported)")
     args = p.parse_args(argv)
     items = [tuple(r.split(":", 1)) if ":" in r else (r, "rmp_residual") for r in args.runs]
     for env, policy in items:
@@ -53,12 +59,16 @@ def main(argv: list[str] | None = None) -> int:
                     f"POLICY in {list(KINDS)}, got {env}:{policy}")
     if args.preset not in PRESETS:
         p.error(f"unknown --preset {args.preset!r}; valid presets are {sorted(PRESETS)}")
+    if not (args.first or args.full):
+        p.error("--no-first-iteration and --first-iteration-only leave nothing to time")
+    if args.warm_runs < 1:
+        p.error(f"--warm-runs must be a positive integer, got {args.warm_runs}")
     if args.iterations < 1:
         p.error(f"--iterations must be a positive integer, got {args.iterations}")
     command = " ".join(["python scripts/bench_training.py",
                         *(argv if argv is not None else sys.argv[1:])])
     path = run_training_speed(items, args.seeds, args.iterations, args.preset, args.work,
-                              args.out, command, args.first)
+                              args.out, command, args.first, args.full, args.warm_runs)
     print(f"wrote {path}", file=sys.stderr)
     return 0
 

@@ -24,6 +24,10 @@ every seed in one compiled program (:mod:`agents.run.sweep`), into ``--out`` (de
 ``runs/sweep_<env>_<policy>``) with one ordinary run directory per point, ``sweep.csv`` and
 ``sweep_curves.png``.
 
+A repeated command (``--out``, ``--resume``, ``--no-progress``, ``--checkpoint-every`` and
+``--keep-checkpoints`` aside) starts compiling the programs the last one used while it imports
+(:func:`agents.run.program_cache.prefetch`; with the compile cache, ``MJXRMP_COMPILE_CACHE``).
+
 Multi-process (multi-host) training (docs/multihost.md): run the same command in every process
 with ``--coordinator HOST:PORT --num-processes N --process-id I`` (or ``--distributed`` to take
 them from ``MJXRMP_COORDINATOR``/``MJXRMP_NUM_PROCESSES``/``MJXRMP_PROCESS_ID`` or the cluster's
@@ -41,6 +45,26 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from mjxrmp import _xla
 
 _xla.configure_script()
+
+from agents.run.program_cache import command_label, prefetch, remember  # noqa: E402
+
+#: Options (with a value / without) that do not change what a command compiles.
+_UNCOMPILED = ({"--out", "--checkpoint-every", "--keep-checkpoints"}, {"--resume", "--no-progress"})
+#: Options of a multi-process run (JAX must not start before ``jax.distributed`` connects).
+_MULTIPROCESS = ("--distributed", "--coordinator", "--num-processes", "--process-id")
+
+
+def _start_prefetch(argv: list[str]) -> None:
+    """Compile the programs the same command used last time in background threads while the
+    imports below run (:func:`agents.run.program_cache.prefetch`); not in a multi-process
+    run (any abbreviation of its options counts)."""
+    names = {a.split("=", 1)[0] for a in argv if a.startswith("--") and len(a) > 2}
+    if not any(f.startswith(n) for n in names for f in _MULTIPROCESS):
+        prefetch(command_label(argv, *_UNCOMPILED))
+
+
+if __name__ == "__main__":
+    _start_prefetch(sys.argv[1:])
 
 import envs  # noqa: E402
 from agents.ppo import KINDS, make_mesh  # noqa: E402
@@ -144,6 +168,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_DIVERGED
     except KeyboardInterrupt:
         return 130
+    remember(command_label(sys.argv[1:] if argv is None else argv, *_UNCOMPILED))
     if result.history:
         print(result_summary(result), file=sys.stderr)
     print(f"wrote {out}/" + ("sweep.csv, sweep_curves.png and one run directory per point"

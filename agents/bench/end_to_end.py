@@ -1,13 +1,14 @@
 """End-to-end training time, measured the way a user meets it: ``scripts/train.py`` run as a
 fresh process and timed from launch to exit (imports, compile, training, checkpoints), and the
 time a repeated short command takes to reach and finish its first iteration with JAX's
-persistent compilation cache cold and then warm (docs/design.md §5.6). Written as the
-``training_speed`` study (``results/training_speed/summary.json``)."""
+persistent compilation cache cold and then warm, and a resumed one (docs/design.md §5.6).
+Written as the ``training_speed`` study (``results/training_speed/summary.json``)."""
 
 from __future__ import annotations
 
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -15,6 +16,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from mjxrmp.config import check_int
 from mjxrmp.results.summary import load_summary, run_record, write_study
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -50,35 +52,60 @@ def timed_train(args: list[str], cache_dir: str, out_dir: str | None = None
 
 
 def measure_training_speed(env: str, policy: str, seeds: list[int], iterations: int,
-                           preset: str, work_dir: Path, first: bool = True) -> dict[str, Any]:
-    """``full``: the whole run (``iterations``, chunks of 25, checkpoints every 50) with a fresh
-    compile cache; with ``first``, ``first_cold`` / ``first_warm``: the same settings for one
-    iteration (chunks of one, a new run directory each), first with a cache that holds no
-    one-iteration program, then repeated with it (else None)."""
+                           preset: str, work_dir: Path, first: bool = True, full: bool = True,
+                           warm_runs: int = 1) -> dict[str, Any]:
+    """With ``full``, ``full``: the whole run (``iterations``, chunks of 25, checkpoints every
+    50) with a fresh compile cache (else None); with ``first``, ``first_cold`` /
+    ``first_warm``: the same settings for one iteration (chunks of one, a new run directory
+    each), first with a cache that holds no one-iteration program, then repeated with it
+    ``warm_runs`` times (``first_warm`` the run of median ``first_chunk_s``, all of them in
+    ``first_warm_runs``), and ``resumed``: :func:`_timed_resume` (else None). ``full=False``
+    measures only the repeated command (its cold run fills the cache)."""
+    if not (first or full):
+        raise ValueError("measure_training_speed needs first=True or full=True (nothing to time)")
+    check_int(warm_runs, "warm_runs")
     base = ["--env", env, "--policy", policy, "--preset", preset,
             "--seeds", *map(str, seeds)]
     work_dir.mkdir(parents=True, exist_ok=True)
-    first_cold = first_warm = None
+    full_t = first_cold = resumed = None
+    warm: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(dir=work_dir) as tmp:
         cache = os.path.join(tmp, "cache")
-        full = timed_train([*base, "--iterations", str(iterations), "--log-every", "25",
-                            "--checkpoint-every", "50", "--out", f"{tmp}/full"], cache)
+        if full:
+            full_t = timed_train([*base, "--iterations", str(iterations), "--log-every", "25",
+                                  "--checkpoint-every", "50", "--out", f"{tmp}/full"], cache)
         one = [*base, "--iterations", "1", "--log-every", "1", "--checkpoint-every", "1"]
         if first:
             first_cold = timed_train([*one, "--out", f"{tmp}/first_cold"], cache,
                                      f"{tmp}/first_cold")
-            first_warm = timed_train([*one, "--out", f"{tmp}/first_warm"], cache,
-                                     f"{tmp}/first_warm")
+            warm = [timed_train([*one, "--out", f"{tmp}/warm{i}"], cache, f"{tmp}/warm{i}")
+                    for i in range(warm_runs)]
+            resumed = _timed_resume(base, cache, tmp)
+    median = sorted(warm, key=lambda t: t["first_chunk_s"])[(len(warm) - 1) // 2] if warm else None
     return {"env": env, "policy": policy, "seeds": list(seeds), "iterations": iterations,
-            "preset": preset, "full": full, "first_cold": first_cold, "first_warm": first_warm}
+            "preset": preset, "full": full_t, "first_cold": first_cold, "first_warm": median,
+            "resumed": resumed, **({"first_warm_runs": warm} if len(warm) > 1 else {})}
+
+
+def _timed_resume(base: list[str], cache: str, tmp: str) -> dict[str, Any]:
+    """:func:`timed_train` of a resumed command with the warm cache: a run of two iterations
+    (chunks and checkpoints of one) loses its last checkpoint and the same command continues
+    it with ``--resume`` (``first_chunk_s``: launch to its one remaining iteration done)."""
+    two = [*base, "--iterations", "2", "--log-every", "1", "--checkpoint-every", "1",
+           "--keep-checkpoints", "0", "--out", f"{tmp}/resumed"]
+    timed_train(two, cache)
+    shutil.rmtree(os.path.join(tmp, "resumed", "checkpoints", "2"))
+    return timed_train([*two, "--resume"], cache, f"{tmp}/resumed")
 
 
 def _row(r: dict[str, Any]) -> list[str]:
     f = r["full"]
-    return [r["env"], r["policy"], str(len(r["seeds"])), str(r["iterations"]),
-            f"{f['wall_s']:.0f}", f"{f['compile_s']:.1f}", f"{f['train_s']:.0f}",
-            f"{f['train_s'] / r['iterations']:.3f}", f"{f['steps_per_s']:.3g}",
-            _wall(r["first_cold"]), _wall(r["first_warm"]), _first(r["first_warm"])]
+    whole = ["—"] * 5 if f is None else [
+        f"{f['wall_s']:.0f}", f"{f['compile_s']:.1f}", f"{f['train_s']:.0f}",
+        f"{f['train_s'] / r['iterations']:.3f}", f"{f['steps_per_s']:.3g}"]
+    return [r["env"], r["policy"], str(len(r["seeds"])), str(r["iterations"]), *whole,
+            _wall(r["first_cold"]), _wall(r["first_warm"]), _first(r["first_warm"]),
+            _first(r.get("resumed"))]
 
 
 def _wall(t: dict[str, Any] | None) -> str:
@@ -93,7 +120,8 @@ def _first(t: dict[str, Any] | None) -> str:
 COLUMNS = ["environment", "policy", "seeds", "iterations", "end to end (s)", "compile (s)",
            "training (s)", "s per iteration", "env steps/s",
            "one-iteration command, cold cache (s)", "the same, warm cache (s)",
-           "launch to first iteration done, warm cache (s)"]
+           "launch to first iteration done, warm cache (s)",
+           "resumed command, launch to first iteration done (s)"]
 
 
 def write_training_speed(results: list[dict[str, Any]], out_dir: Path) -> Path:
@@ -102,16 +130,21 @@ def write_training_speed(results: list[dict[str, Any]], out_dir: Path) -> Path:
     headline = []
     for r in results:
         f = r["full"]
-        headline.append((r["run"], [
-            f"{r['env']} {r['policy']}, {r['preset']} preset, {len(r['seeds'])} seeds × "
-            f"{r['iterations']} iterations: end to end from launch (compile, training)",
-            "—", f"{f['wall_s']:.0f} s ({f['compile_s']:.0f} s, {f['train_s']:.0f} s)"]))
+        if f is not None:
+            headline.append((r["run"], [
+                f"{r['env']} {r['policy']}, {r['preset']} preset, {len(r['seeds'])} seeds × "
+                f"{r['iterations']} iterations: end to end from launch (compile, training)",
+                "—", f"{f['wall_s']:.0f} s ({f['compile_s']:.0f} s, {f['train_s']:.0f} s)"]))
         if r["first_cold"] is not None:
             headline.append((r["run"], [
                 f"{r['env']} {r['policy']}: a repeated one-iteration command, launch to exit "
                 "with the compile cache cold / warm (launch to its first iteration done, warm)",
                 "—", f"{_wall(r['first_cold'])} s / {_wall(r['first_warm'])} s "
                      f"({_first(r['first_warm'])} s)"]))
+        if r.get("resumed") is not None:
+            headline.append((r["run"], [
+                f"{r['env']} {r['policy']}: a resumed command (same settings, warm cache), "
+                "launch to its first iteration done", "—", f"{_first(r['resumed'])} s"]))
     head = {"study": "training_speed", "title": "Training end to end",
             "report": "docs/reports/training_speed.md"}
     return write_study(out_dir, head, {r["run"]: r["record"] for r in results}, headline,
@@ -130,15 +163,17 @@ def _kept(out_dir: Path, device: str, items: list[tuple[str, str]]) -> list[dict
 
 def run_training_speed(items: list[tuple[str, str]], seeds: list[int], iterations: int,
                        preset: str, work_dir: Path, out_dir: Path, command: str,
-                       first: bool = True) -> Path:
-    """Measure every ``(env, policy)`` of ``items`` (:func:`measure_training_speed`), printing
-    a line each and writing the study after each (a cut run keeps what it measured). Rows of
-    other pairs measured earlier on the same device are kept."""
+                       first: bool = True, full: bool = True, warm_runs: int = 1) -> Path:
+    """Measure every ``(env, policy)`` of ``items`` (:func:`measure_training_speed`; ``first``,
+    ``full`` and ``warm_runs`` choose the measurements), printing a line each and writing the
+    study after each (a cut run keeps what it measured). Rows of other pairs measured earlier on
+    the same device are kept."""
     record = run_record(command)
     results = _kept(out_dir, record["device"], items)
     path = out_dir / "summary.json"
     for env, policy in items:
-        r = measure_training_speed(env, policy, seeds, iterations, preset, work_dir, first)
+        r = measure_training_speed(env, policy, seeds, iterations, preset, work_dir, first,
+                                   full, warm_runs)
         slug = "".join(c if c.isalnum() else "_" for c in f"{env}_{policy}_{record['device']}")
         results.append({**r, "run": slug.lower(), "record": record})
         print(" | ".join(_row(r)), flush=True)

@@ -36,9 +36,8 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-import orbax.checkpoint as ocp
 
-from agents.run.distributed import manager_options, restore_target
+from agents.run.distributed import manager_options, orbax, restore_target
 from mjxrmp.atomic import atomic_write
 from mjxrmp.divergence import first_nonfinite_leaf
 
@@ -65,10 +64,10 @@ class NonFiniteCheckpointError(ValueError):
     """A checkpoint whose state holds NaN or inf values (a diverged run)."""
 
 
-def _manager(directory: str | os.PathLike, create: bool = True) -> ocp.CheckpointManager:
+def _manager(directory: str | os.PathLike, create: bool = True) -> Any:
     path = os.path.abspath(os.fspath(directory))
-    options = ocp.CheckpointManagerOptions(max_to_keep=None, **manager_options(path, create))
-    return ocp.CheckpointManager(path, options=options)
+    options = orbax().CheckpointManagerOptions(max_to_keep=None, **manager_options(path, create))
+    return orbax().CheckpointManager(path, options=options)
 
 
 def _step_dir(directory: str | os.PathLike, step: int) -> str:
@@ -150,14 +149,14 @@ def _orbax_read(directory: str | os.PathLike, step: int, item: str, args: Any) -
     """Item ``item`` of step ``step`` read by orbax; read errors become one-line corruption."""
     try:
         with _manager(directory, create=False) as mgr:
-            return mgr.restore(step, args=ocp.args.Composite(**{item: args}))[item]
+            return mgr.restore(step, args=orbax().args.Composite(**{item: args}))[item]
     except _READ_ERRORS as e:
         raise CorruptCheckpointError(_step_dir(directory, step),
                                      f"{item} unreadable ({_first_line(e)})") from None
 
 
 def _read_meta(directory: str | os.PathLike, step: int) -> dict[str, Any]:
-    return dict(_orbax_read(directory, step, "meta", ocp.args.JsonRestore()))
+    return dict(_orbax_read(directory, step, "meta", orbax().args.JsonRestore()))
 
 
 def verify(directory: str | os.PathLike, step: int) -> dict[str, Any] | None:
@@ -285,8 +284,8 @@ def save(directory: str | os.PathLike, step: int, state: Any, meta: dict[str, An
             except CorruptCheckpointError as e:
                 _warn(f"replacing corrupt checkpoint {e.path}: {e.reason}")
                 mgr.delete(step)
-        mgr.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(flat),
-                                               meta=ocp.args.JsonSave(meta)),
+        mgr.save(step, args=orbax().args.Composite(state=orbax().args.StandardSave(flat),
+                                                   meta=orbax().args.JsonSave(meta)),
                  force=True)
         mgr.wait_until_finished()
     files = _file_digests(root)  # orbax has renamed the complete step into place
@@ -369,7 +368,7 @@ def _restore_step(directory: str | os.PathLike, step: int, template: Any,
     _check_leaves(meta, [[list(x.shape), str(x.dtype)] for x in leaves])
     abstract = {f"leaf_{i:05d}": restore_target(x) for i, x in enumerate(leaves)
                 if np.prod(x.shape) > 0}
-    flat = _orbax_read(directory, step, "state", ocp.args.StandardRestore(abstract))
+    flat = _orbax_read(directory, step, "state", orbax().args.StandardRestore(abstract))
     out = [flat[f"leaf_{i:05d}"] if np.prod(x.shape) > 0 else jnp.zeros(x.shape, x.dtype)
            for i, x in enumerate(leaves)]
     state = jax.tree.unflatten(treedef, out)

@@ -134,12 +134,13 @@ def load_run(run_dir: str | os.PathLike, step: int | None = None) -> LoadedRun:
 
     The spec comes from ``run.json``, the program from :func:`agents.run.program.build` (cached,
     so loading several checkpoints of one run builds it once), the state with the template
-    ``jax.eval_shape(program.init, seed_keys(spec.seeds))``. Raises ``FileNotFoundError`` for a
-    missing directory, ``run.json`` or checkpoint (naming the steps there are),
-    :class:`agents.run.checkpoint.IncompatibleCheckpointError` when the checkpoint does not belong
-    to the spec (environment, policy kind, seeds, PPO settings or array shapes differ),
-    :class:`~agents.run.checkpoint.CorruptCheckpointError` for a corrupt requested step (or no
-    intact one) and :class:`~agents.run.checkpoint.NonFiniteCheckpointError` for NaN/inf state.
+    ``program.state_shapes(seed_keys(spec.seeds))`` (``jax.eval_shape`` of its init). Raises
+    ``FileNotFoundError`` for a missing directory, ``run.json`` or checkpoint (naming the steps
+    there are), :class:`agents.run.checkpoint.IncompatibleCheckpointError` when the checkpoint
+    does not belong to the spec (environment, policy kind, seeds, PPO settings or array shapes
+    differ), :class:`~agents.run.checkpoint.CorruptCheckpointError` for a corrupt requested step
+    (or no intact one) and :class:`~agents.run.checkpoint.NonFiniteCheckpointError` for NaN/inf
+    state.
     """
     run_dir = os.fspath(run_dir)
     spec = read_spec(run_dir)
@@ -151,7 +152,7 @@ def load_run(run_dir: str | os.PathLike, step: int | None = None) -> LoadedRun:
         raise FileNotFoundError(f"no checkpoint of step={step!r} in {ckpt_dir!r}; available "
                                 f"steps are {steps}")
     program = build(spec)
-    template = jax.eval_shape(program.init, seed_keys(spec.seeds))
+    template = program.state_shapes(seed_keys(spec.seeds))
     state, meta = checkpoint.restore(ckpt_dir, template, step=step, expected=spec.identity())
     return LoadedRun(run_dir, spec, program, state, meta, int(meta["step"]))
 

@@ -17,7 +17,7 @@ import numpy as np
 from jax.sharding import Mesh
 
 from agents.ppo import PPOConfig, Trainer, TrainState, make_env_and_policy, make_trainer
-from agents.run.program_cache import exported
+from agents.run.program_cache import exported, exported_shapes
 from agents.run.spec import RunSpec
 
 #: The ``axis_name`` of the vmap over seeds (lets the rollout's auto-reset and reset pools take
@@ -74,6 +74,15 @@ class Program:
             self.inits[n] = init or self.init
             self.compile_seconds += time.perf_counter() - t0
         return self.inits[n](keys)
+
+    def state_shapes(self, keys: jax.Array) -> Any:
+        """``jax.eval_shape(init, keys)`` (the state's structure, shapes and dtypes as
+        ``jax.ShapeDtypeStruct`` leaves), read from the exported init program of an earlier
+        process where there is one instead of tracing ``init`` (a resume's restore target)."""
+        shapes = None
+        if self.description is not None and jax.process_count() == 1:
+            shapes = exported_shapes((keys,), {**self.description, "program": "init"})
+        return jax.eval_shape(self.init, keys) if shapes is None else shapes
 
 
 @functools.lru_cache(maxsize=8)

@@ -9,6 +9,11 @@ everything that shapes the program: the caller's description (run settings, chun
 input's tree structure, shapes and dtypes), the JAX version and the numeric settings (x64,
 default matmul precision), the device kind and a hash of the project's own source files, so any
 code change makes new artifacts. Sharded and multi-process programs are not kept.
+
+A script can also have the programs of a repeated command compiled ahead: :func:`remember`
+notes which artifacts a command (labelled by :func:`command_label`) used, and :func:`prefetch`,
+called by the next such command before its heavy imports, deserialises them in background
+threads meanwhile (a compile ahead is only ever used for the artifact key it was made for).
 """
 
 from __future__ import annotations
@@ -18,8 +23,10 @@ import hashlib
 import json
 import pickle
 import re
+import threading
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Collection, Sequence
+from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +36,12 @@ from mjxrmp.atomic import atomic_write
 
 _PACKAGES = ("mjxrmp", "envs", "agents")
 ROOT = Path(__file__).resolve().parents[2]
+#: At most this many programs are compiled ahead (:func:`prefetch`).
+_MAX_AHEAD = 4
+#: Programs being compiled ahead of their use (:func:`prefetch`), by artifact path.
+_AHEAD: dict[Path, Future] = {}
+#: The artifact files this process used, in order of first use (:func:`remember`).
+_USED: list[str] = []
 
 
 @functools.lru_cache(maxsize=1)
@@ -65,54 +78,24 @@ def program_key(description: dict[str, Any], args: Any) -> str:
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()
 
 
-def _load(path: Path) -> tuple[Any, Any]:
-    """``(Exported, output tree)`` of an artifact file."""
+def _read(path: Path) -> tuple[Any, bytes]:
+    """``(Exported, pickled output tree)`` of an artifact file. The tree stays pickled: loading
+    it imports the modules of its node types, which a compile ahead in a background thread
+    leaves to the main thread (:func:`prefetch`)."""
     record = pickle.loads(path.read_bytes())
     return jax.export.deserialize(bytearray(record["exported"])), record["out_tree"]
 
 
-def exported(fn: Callable[..., Any], args: tuple[Any, ...], description: dict[str, Any]
-             ) -> Callable[..., Any] | None:
-    """``fn`` for arguments shaped like ``args`` (any pytrees of arrays), compiled from its
-    exported program: read from the artifact directory when there, else exported and written
-    there (atomically, with the output's tree structure). The compile itself is answered by
-    the persistent compilation cache on a repeat. None when that cache is off or ``fn``
-    cannot be exported (with a warning; the caller then compiles it as usual)."""
-    folder = artifact_dir()
-    if folder is None:
-        return None
-    leaves, in_tree = jax.tree.flatten(args)
-    path = folder / f"{program_key(description, args)}.jaxexport"
-    loaded = None
-    if path.exists():
-        try:
-            loaded = _load(path)
-        except Exception as e:  # any unreadable artifact is exported again
-            warnings.warn(f"unreadable program artifact {path} ({type(e).__name__}: {e}); "
-                          "exporting it again", stacklevel=2)
-    if loaded is not None:
-        exp, out_tree = loaded
-    else:
-        box: dict[str, Any] = {}
+def _compile(exp: Any) -> Any:
+    """The exported program ``exp`` compiled (answered by the persistent compilation cache on a
+    repeat), lowered from its own input shapes, so that a compile ahead of use (:func:`prefetch`)
+    and one at use look up the same cache entry, whatever devices the arguments are on."""
+    specs = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in exp.in_avals]
+    return jax.jit(exp.call).lower(specs).compile()
 
-        def flat(xs):
-            out = fn(*jax.tree.unflatten(in_tree, xs))
-            box["out_tree"] = jax.tree.structure(out)
-            return jax.tree.leaves(out)
 
-        specs = [jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves]
-        try:
-            exp = jax.export.export(jax.jit(flat))(specs)
-            data = bytes(exp.serialize())
-        except (ValueError, NotImplementedError, TypeError) as e:
-            # e.g. a custom call jax.export does not guarantee: the caller compiles as usual
-            warnings.warn(f"program {description} is not kept between processes: {e}",
-                          stacklevel=2)
-            return None
-        out_tree = box["out_tree"]
-        folder.mkdir(parents=True, exist_ok=True)
-        atomic_write(path, pickle.dumps({"exported": data, "out_tree": out_tree}))
-    compiled = jax.jit(exp.call).lower(leaves).compile()
+def _calling(compiled: Any, out_tree: Any) -> Callable[..., Any]:
+    """``compiled`` (flat arguments and results) called on pytrees, its results as ``out_tree``."""
 
     def call(*a: Any) -> Any:
         return jax.tree.unflatten(out_tree, compiled(jax.tree.leaves(a)))
@@ -120,4 +103,163 @@ def exported(fn: Callable[..., Any], args: tuple[Any, ...], description: dict[st
     return call
 
 
-__all__ = ["artifact_dir", "exported", "program_key", "source_hash"]
+def exported_shapes(args: tuple[Any, ...], description: dict[str, Any]) -> Any | None:
+    """The output of the program :func:`exported` keeps for ``args`` and ``description`` as a
+    pytree of ``jax.ShapeDtypeStruct`` (what ``jax.eval_shape`` gives, without tracing), read
+    from its artifact; None where there is none (or it is unreadable)."""
+    folder = artifact_dir()
+    path = None if folder is None else folder / f"{program_key(description, args)}.jaxexport"
+    if path is None or not path.exists():
+        return None
+    try:
+        exp, tree = _read(path)
+        out_tree = pickle.loads(tree)
+    except Exception:  # unreadable: the caller traces, exported() warns when it is needed
+        return None
+    return jax.tree.unflatten(out_tree, [jax.ShapeDtypeStruct(a.shape, a.dtype)
+                                         for a in exp.out_avals])
+
+
+def _ahead(path: Path) -> Callable[..., Any] | None:
+    """The program of ``path`` compiled ahead by :func:`prefetch` (waiting for it), or None
+    when it was not prefetched or that failed (the caller then reads it as usual)."""
+    job = _AHEAD.pop(path, None)
+    if job is None:
+        return None
+    try:
+        compiled, tree = job.result()
+        return _calling(compiled, pickle.loads(tree))
+    except Exception:  # e.g. an unreadable artifact: the usual path warns and exports it again
+        return None
+
+
+def exported(fn: Callable[..., Any], args: tuple[Any, ...], description: dict[str, Any]
+             ) -> Callable[..., Any] | None:
+    """``fn`` for arguments shaped like ``args`` (any pytrees of arrays), compiled from its
+    exported program: compiled ahead by :func:`prefetch`, or read from the artifact directory
+    when there, else exported and written there (atomically, with the output's tree
+    structure). The compile itself is answered by the persistent compilation cache on a
+    repeat. None when that cache is off or ``fn`` cannot be exported (with a warning; the
+    caller then compiles it as usual)."""
+    folder = artifact_dir()
+    if folder is None:
+        return None
+    leaves, in_tree = jax.tree.flatten(args)
+    path = folder / f"{program_key(description, args)}.jaxexport"
+    if path.name not in _USED:
+        _USED.append(path.name)
+    ahead = _ahead(path)
+    if ahead is not None:
+        return ahead
+    loaded = None
+    if path.exists():
+        try:
+            exp, tree = _read(path)
+            loaded = exp, pickle.loads(tree)
+        except Exception as e:  # any unreadable artifact is exported again
+            warnings.warn(f"unreadable program artifact {path} ({type(e).__name__}: {e}); "
+                          "exporting it again", stacklevel=2)
+    if loaded is not None:
+        return _calling(_compile(loaded[0]), loaded[1])
+    box: dict[str, Any] = {}
+
+    def flat(xs):
+        out = fn(*jax.tree.unflatten(in_tree, xs))
+        box["out_tree"] = jax.tree.structure(out)
+        return jax.tree.leaves(out)
+
+    specs = [jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves]
+    try:
+        exp = jax.export.export(jax.jit(flat))(specs)
+        data = bytes(exp.serialize())
+    except (ValueError, NotImplementedError, TypeError) as e:
+        # e.g. a custom call jax.export does not guarantee: the caller compiles as usual
+        warnings.warn(f"program {description} is not kept between processes: {e}",
+                      stacklevel=2)
+        _USED.remove(path.name)
+        return None
+    folder.mkdir(parents=True, exist_ok=True)
+    atomic_write(path, pickle.dumps({"exported": data, "out_tree": pickle.dumps(box["out_tree"])}))
+    return _calling(_compile(exp), box["out_tree"])
+
+
+def command_label(argv: Sequence[str], valued: Collection[str] = (),
+                  flags: Collection[str] = ()) -> str:
+    """A command line as the label its programs are remembered by (:func:`remember`): ``argv``
+    without the options ``valued`` (with their values; ``--opt VALUE`` or ``--opt=VALUE``) and
+    the switches ``flags``, which do not change what it compiles."""
+    kept, value_next = [], False
+    for arg in argv:
+        name = arg.split("=", 1)[0]
+        if value_next:
+            value_next = False
+        elif name in valued:
+            value_next = "=" not in arg
+        elif name not in flags:
+            kept.append(arg)
+    return json.dumps(kept)
+
+
+def _record(folder: Path, label: str) -> Path:
+    """The file naming the programs a command labelled ``label`` used (per JAX version and
+    :func:`source_hash`, so a code change forgets it)."""
+    key = json.dumps([label, jax.__version__, source_hash()])
+    return folder / "recent" / f"{hashlib.sha256(key.encode()).hexdigest()}.json"
+
+
+def _recorded(path: Path) -> list[str]:
+    """The artifact file names a record holds ([] where there is none or it is unreadable)."""
+    try:
+        names = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return []
+    return [n for n in names if isinstance(n, str) and Path(n).name == n
+            and n.endswith(".jaxexport")] if isinstance(names, list) else []
+
+
+def remember(label: str) -> None:
+    """Note the programs this process read or exported (in order of first use) as those of the
+    command ``label`` (:func:`command_label`), for :func:`prefetch` in a later process; those
+    noted before for it follow (a resumed command needs no init program, a fresh one does),
+    :data:`_MAX_AHEAD` at most."""
+    folder = artifact_dir()
+    if folder is None or not _USED:
+        return
+    path = _record(folder, label)
+    names = list(dict.fromkeys([*_USED, *_recorded(path)]))[:_MAX_AHEAD]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(path, json.dumps(names).encode())
+
+
+def prefetch(label: str) -> int:
+    """Start compiling, each in a background thread, the programs the last command labelled
+    ``label`` used (:func:`remember`), so that reading and deserialising them (XLA releases the
+    GIL) overlaps what the process does before it needs them: its imports, building the
+    environment. :func:`exported` then takes them when their key comes up; one never asked
+    for is only wasted work. The number of programs started (0 without a record)."""
+    folder = artifact_dir()
+    if folder is None:
+        return 0
+    paths = [folder / n for n in _recorded(_record(folder, label)) if (folder / n).exists()]
+    for path in paths[:_MAX_AHEAD]:
+        if path not in _AHEAD:
+            _AHEAD[path] = job = Future()
+            threading.Thread(target=_compile_ahead, args=(path, job),
+                             name=f"prefetch {path.name[:12]}").start()
+    return min(len(paths), _MAX_AHEAD)
+
+
+def _compile_ahead(path: Path, job: Future) -> None:
+    """Run in a background thread: ``job`` gets ``(compiled program, pickled output tree)`` of
+    the artifact ``path`` (no module is imported here: :func:`_read`)."""
+    if not job.set_running_or_notify_cancel():
+        return
+    try:
+        exp, tree = _read(path)
+        job.set_result((_compile(exp), tree))
+    except Exception as e:  # handed to the caller through the future
+        job.set_exception(e)
+
+
+__all__ = ["artifact_dir", "command_label", "exported", "exported_shapes", "prefetch",
+           "program_key", "remember", "source_hash"]

@@ -148,7 +148,7 @@ def _initial_state(program: Program, spec: RunSpec, ckpt_dir: str, resume: bool,
     keys = seed_keys(spec.seeds)
     if not resume:
         return program.initial_state(keys), {}, 0
-    template = jax.eval_shape(program.init, keys)
+    template = program.state_shapes(keys)
     state, meta = checkpoint.restore(ckpt_dir, template, expected=spec.identity())
     if sharded:  # written by any number of devices and processes, restored on the host
         fresh = program.initial_state(keys)

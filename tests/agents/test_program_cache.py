@@ -1,20 +1,31 @@
 """Training programs kept between processes (agents.run.program_cache, docs/design.md §5.6):
 an exported function gives the same outputs, is read back instead of traced again, is keyed
-by everything that shapes it (not by object addresses), and a PPO chunk compiled from its
-artifact trains bitwise like the one compiled directly."""
+by everything that shapes it (not by object addresses), a PPO chunk compiled from its
+artifact trains bitwise like the one compiled directly (and its init artifact gives a resume's
+restore target), and the programs of a repeated command are compiled ahead in the background."""
 
 from __future__ import annotations
 
+import json
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from script_main import load_script
 
 from agents.run import program as program_module
+from agents.run import program_cache
 from agents.run.program import build, seed_keys
-from agents.run.program_cache import artifact_dir, exported, program_key
+from agents.run.program_cache import (
+    artifact_dir,
+    command_label,
+    exported,
+    prefetch,
+    program_key,
+    remember,
+)
 from agents.run.spec import RunSpec, preset
 
 
@@ -102,6 +113,85 @@ def test_ppo_chunk_from_its_artifact_trains_like_the_direct_compile(cache_dir):
     rebuilt = build(SPEC)
     again = rebuilt.executable(rebuilt.initial_state(seed_keys(SPEC.seeds)), 1)(state)
     assert sorted(p.name for p in artifact_dir().iterdir()) == files
+    # a resume's restore target, read from the init artifact instead of traced
+    keys = seed_keys(SPEC.seeds)
+    assert program_cache.exported_shapes((keys,), {**rebuilt.description, "program": "init"})
+    shapes, traced = rebuilt.state_shapes(keys), jax.eval_shape(rebuilt.init, keys)
+    assert jax.tree.structure(shapes) == jax.tree.structure(traced)
+    assert [(x.shape, x.dtype) for x in jax.tree.leaves(shapes)] == [
+        (x.shape, x.dtype) for x in jax.tree.leaves(traced)]
     program_module._program.cache_clear()
     for got in (via, again):
         jax.tree.map(np.testing.assert_array_equal, got, direct)
+
+
+@pytest.fixture
+def new_process(cache_dir):
+    """The artifact bookkeeping of a fresh process (what it used, what it compiles ahead)."""
+    program_cache._USED.clear()
+    yield cache_dir
+    program_cache._USED.clear()
+    program_cache._AHEAD.clear()
+
+
+def test_a_repeated_command_gets_its_programs_compiled_ahead(new_process):
+    """remember() notes what a command used; the next process with that label has them compiled
+    in the background and exported() hands over that compile (fn is not traced again)."""
+    args = (Pair(jnp.arange(3.0), {"x": jnp.ones((2, 2))}), jnp.asarray(2.0))
+
+    def fn(p: Pair, k: jax.Array):
+        return Pair(jnp.sin(p.a) * k, {"s": p.b["x"].sum()})
+
+    exported(fn, args, {"what": "ahead"})
+    exported(jnp.cos, (jnp.ones(4),), {"what": "ahead"})
+    remember("train --seeds 0")
+    program_cache._USED.clear()  # a new process
+    assert prefetch("train --seeds 1") == 0 and not program_cache._AHEAD
+    assert prefetch("train --seeds 0") == 2 and len(program_cache._AHEAD) == 2
+    # the background thread leaves the output tree pickled (loading it imports its node types)
+    assert all(isinstance(job.result()[1], bytes) for job in program_cache._AHEAD.values())
+
+    def untraceable(*_):
+        raise AssertionError("traced although compiled ahead")
+
+    out = exported(untraceable, args, {"what": "ahead"})(*args)
+    assert len(program_cache._AHEAD) == 1  # the other one was not asked for
+    np.testing.assert_array_equal(out.a, jnp.sin(args[0].a) * 2.0)
+    np.testing.assert_array_equal(out.b["s"], 4.0)
+    remember("train --seeds 0")  # used now first, then what the label used before
+    record = json.loads(program_cache._record(artifact_dir(), "train --seeds 0").read_text())
+    assert record == list(dict.fromkeys([*program_cache._USED, *record]))
+    assert len(record) == 2 and record[0] == program_cache._USED[0]
+
+
+def test_a_damaged_artifact_compiled_ahead_is_exported_again(new_process):
+    args = (jnp.arange(3.0),)
+    exported(jnp.cos, args, {"what": "damaged ahead"})
+    remember("label")
+    (path,) = artifact_dir().glob("*.jaxexport")
+    path.write_bytes(b"not an artifact")
+    assert prefetch("label") == 1
+    with pytest.warns(UserWarning, match="unreadable program artifact"):
+        call = exported(jnp.cos, args, {"what": "damaged ahead"})
+    np.testing.assert_array_equal(call(*args), jnp.cos(args[0]))
+
+
+def test_command_label_leaves_out_what_does_not_compile():
+    label = command_label(["--env", "a", "--out", "r1", "--resume", "--out=r2", "--seeds", "0"],
+                          {"--out"}, {"--resume"})
+    assert json.loads(label) == ["--env", "a", "--seeds", "0"]
+
+
+def test_train_script_prefetches_except_in_a_multi_process_run(new_process):
+    """scripts/train.py starts the compile ahead for its label, never before jax.distributed
+    (abbreviated options included)."""
+    train = load_script("train.py")
+    exported(jnp.sin, (jnp.ones(2),), {"what": "script"})
+    argv = ["--seeds", "0", "--out", "runs/x"]
+    for extra in (["--coordinator", "h:1"], ["--dist"], ["--num-proc=2"]):
+        remember(command_label(argv + extra, *train._UNCOMPILED))
+        train._start_prefetch(argv + extra)
+        assert not program_cache._AHEAD
+    remember(command_label(argv, *train._UNCOMPILED))
+    train._start_prefetch([*argv[:2], "--out", "runs/y", "--no-progress"])
+    assert len(program_cache._AHEAD) == 1
