@@ -10,10 +10,10 @@ reported per control step:
   iteration (``contact_free_1iter``): the floor the environment is compared with;
 * ``env_step_raw`` — the environment's own ``step`` (PD scheme, geometry, reward, observation)
   with a zero action, no wrappers;
-* ``env_step`` — the training ``envs.wrappers.wrap`` step (episode limit and auto-reset,
-  computed only at steps where an episode ended);
-* ``env_step_reset_always`` — the same with the reset computed for every environment at every
-  step and selected where an episode ended (the auto-reset before the conditional);
+* ``env_step`` — the training ``envs.wrappers.wrap`` step (episode limit and auto-reset: on the
+  CPU computed only at steps where an episode ended, elsewhere at every step and selected);
+* ``env_step_reset_always`` — where the auto-reset is conditional (the CPU), the same with the
+  reset computed for every environment at every step and selected where an episode ended;
 * ``env_step_pooled`` — the same, restarting from reset pools made every
   :data:`agents.ppo.rollout.POOL_BLOCK` steps, as the PPO rollout does;
 * ``reset`` — one full ``reset`` of every environment (scene sampling with rejection);
@@ -42,7 +42,7 @@ import envs
 from agents.ppo.rollout import POOL_DEPTH, pool_block
 from envs.evaluate import hand_designed_policy
 from envs.physics import set_constraint_stages
-from envs.wrappers import wrap
+from envs.wrappers import CONDITIONAL_RESET_BACKENDS, wrap
 
 #: The MJX model variants timed as the physics floor.
 PHYSICS_VARIANTS = ("as_is", "contact_free", "contact_free_1iter")
@@ -123,8 +123,9 @@ def phase_programs(env_name: str, batch: int, steps: int, key: jax.Array
     out["env_step_raw"] = lambda: raw(state)
     stepped = _scan(lambda s: wrapped.step(s, zero), steps)
     out["env_step"] = lambda: stepped(wstate)
-    always = _scan(lambda s: wrapped.step_resetting_always(s, zero), steps)
-    out["env_step_reset_always"] = lambda: always(wstate)
+    if jax.default_backend() in CONDITIONAL_RESET_BACKENDS:  # else env_step is this program
+        always = _scan(lambda s: wrapped.step_resetting_always(s, zero), steps)
+        out["env_step_reset_always"] = lambda: always(wstate)
     block = pool_block(steps) or steps
 
     def pooled_block(s):

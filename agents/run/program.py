@@ -19,6 +19,7 @@ from jax.sharding import Mesh
 from agents.ppo import PPOConfig, Trainer, TrainState, make_env_and_policy, make_trainer
 from agents.run.program_cache import exported, exported_shapes
 from agents.run.spec import RunSpec
+from envs.wrappers import CONDITIONAL_RESET_BACKENDS
 
 #: The ``axis_name`` of the vmap over seeds (lets the rollout's auto-reset and reset pools take
 #: one branch for all seeds: :func:`agents.ppo.make_trainer`).
@@ -131,8 +132,8 @@ def profile_iteration(program: Program, state: TrainState, repeats: int = 3) -> 
     (the policy alone — RMP² included — on the rollout's ``rollout_length × num_envs``
     observations), ``update`` (GAE + every epoch and minibatch, RMP² backprop included) and
     ``rollout_reset_pools`` (the same rollout restarting episodes from reset pools:
-    :func:`agents.ppo.make_trainer`) and ``rollout_reset_always`` (the reset computed at every
-    step and selected, the rollout without the conditional auto-reset). Does not change
+    :func:`agents.ppo.make_trainer`) and, where the auto-reset is conditional (the CPU),
+    ``rollout_reset_always`` (the reset computed at every step and selected). Does not change
     ``state``."""
     trainer = program.trainer
     n = trainer.config.rollout_length
@@ -148,10 +149,13 @@ def profile_iteration(program: Program, state: TrainState, repeats: int = 3) -> 
         return jax.lax.scan(body, 0, obs)[1]
 
     forward = jax.jit(jax.vmap(forward))
+    # where the auto-reset is not conditional, the always-reset rollout is ``rollout`` itself
+    kinds = [("rollout_reset_pools", SEED_AXIS, True)] + (
+        [("rollout_reset_always", None, False)]
+        if jax.default_backend() in CONDITIONAL_RESET_BACKENDS else [])
     variants = {name: jax.jit(jax.vmap(make_trainer(
         trainer.env, trainer.policy, trainer.config, seed_axis=axis, reset_pools=pools).rollout,
-        axis_name=SEED_AXIS)) for name, axis, pools in (
-        ("rollout_reset_pools", SEED_AXIS, True), ("rollout_reset_always", None, False))}
+        axis_name=SEED_AXIS)) for name, axis, pools in kinds}
     pieces = {"rollout": lambda: rollout(state, keys),
               **{name: functools.partial(fn, state, keys) for name, fn in variants.items()},
               "policy_forward": lambda: forward(state, tr.obs[:, :n]),
