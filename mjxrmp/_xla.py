@@ -24,8 +24,10 @@ CACHE_OFF = ("off", "0", "false")
 #: JAX's own variables; a user who sets the directory keeps full control of the cache.
 JAX_CACHE_DIR_ENV = "JAX_COMPILATION_CACHE_DIR"
 JAX_MIN_TIME_ENV = "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"
-#: Compiles shorter than this are not cached (JAX's default, 1 s, would skip most CPU programs).
-MIN_COMPILE_TIME_S = 0.2
+#: Compiles shorter than this are not cached. JAX's default, 1 s, would skip most CPU programs;
+#: 0 stores every one: on a GPU even the environment's small set-up programs (a dozen of them,
+#: each a few tens of ms to compile) add about 0.6 s to a warm start (docs/design.md §5.6).
+MIN_COMPILE_TIME_S = 0.0
 
 
 def _jaxlib_version() -> tuple[int, ...]:
