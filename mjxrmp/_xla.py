@@ -13,6 +13,7 @@ library does not: only :func:`configure_script`, which every script calls, does.
 from __future__ import annotations
 
 import os
+import re
 import sys
 from collections.abc import Mapping
 from importlib import metadata
@@ -50,6 +51,23 @@ def cpu_xla_flags(flags: str | None = None) -> str:
     if cpu_flag_supported() and "xla_cpu_use_fusion_emitters" not in flags:
         flags = f"{flags} {CPU_FLAG}".strip()
     return flags
+
+
+#: XLA:CPU optimisation level for programs that run once (a PPO run's ``init``): their compile
+#: at XLA's default level 3 took 11 s (3-link) and 29 s (Franka) on a 2-core CPU, at level 1
+#: 2.9 s and 2.8 s, for the same run time (docs/design.md §5.6).
+RUN_ONCE_CPU_LEVEL = 1
+_LEVEL_FLAG = re.compile(r"--xla_backend_optimization_level=(\d+)")
+
+
+def run_once_compiler_options(backend: str) -> dict[str, int]:
+    """``compiler_options`` for a program that runs once: on the CPU, optimisation level
+    :data:`RUN_ONCE_CPU_LEVEL` (or the lower level ``XLA_FLAGS`` sets), elsewhere none."""
+    if backend != "cpu":
+        return {}
+    found = _LEVEL_FLAG.findall(os.environ.get("XLA_FLAGS", ""))
+    level = min([RUN_ONCE_CPU_LEVEL, *map(int, found[-1:])])
+    return {"xla_backend_optimization_level": level}
 
 
 def configure_cpu_flags() -> None:

@@ -20,6 +20,7 @@ from agents.ppo import PPOConfig, Trainer, TrainState, make_env_and_policy, make
 from agents.run.program_cache import exported, exported_shapes
 from agents.run.spec import RunSpec
 from envs.wrappers import CONDITIONAL_RESET_BACKENDS
+from mjxrmp._xla import run_once_compiler_options
 
 #: The ``axis_name`` of the vmap over seeds (lets the rollout's auto-reset and reset pools take
 #: one branch for all seeds: :func:`agents.ppo.make_trainer`).
@@ -57,22 +58,26 @@ class Program:
             self.compile_seconds += time.perf_counter() - t0
         return self.executables[key]
 
-    def _from_artifact(self, fn: Callable, args: tuple, what: dict[str, Any]
-                       ) -> Callable | None:
+    def _from_artifact(self, fn: Callable, args: tuple, what: dict[str, Any],
+                       compiler_options: dict[str, Any] | None = None) -> Callable | None:
         """``fn`` compiled from its exported program (:func:`agents.run.program_cache.exported`),
         or None for a sharded or multi-process program."""
         if self.description is None or jax.process_count() > 1:
             return None
-        return exported(fn, args, {**self.description, **what})
+        return exported(fn, args, {**self.description, **what}, compiler_options)
 
     def initial_state(self, keys: jax.Array) -> TrainState:
         """``init(keys)``, compiled once per seed count, from the exported init program of an
-        earlier process where there is one (the time is added to ``compile_seconds``)."""
+        earlier process where there is one (the time is added to ``compile_seconds``). It runs
+        once, so it compiles with :func:`mjxrmp._xla.run_once_compiler_options` (on the CPU a
+        lower optimisation level: docs/design.md §5.6)."""
         n = keys.shape[0]
         if n not in self.inits:
             t0 = time.perf_counter()
-            init = self._from_artifact(self.init, (keys,), {"program": "init"})
-            self.inits[n] = init or self.init
+            options = run_once_compiler_options(jax.default_backend())
+            init = self._from_artifact(self.init, (keys,), {"program": "init"}, options)
+            self.inits[n] = init or self.init.lower(keys).compile(
+                compiler_options=options or None)
             self.compile_seconds += time.perf_counter() - t0
         return self.inits[n](keys)
 
@@ -82,7 +87,8 @@ class Program:
         process where there is one instead of tracing ``init`` (a resume's restore target)."""
         shapes = None
         if self.description is not None and jax.process_count() == 1:
-            shapes = exported_shapes((keys,), {**self.description, "program": "init"})
+            shapes = exported_shapes((keys,), {**self.description, "program": "init"},
+                                     run_once_compiler_options(jax.default_backend()))
         return jax.eval_shape(self.init, keys) if shapes is None else shapes
 
 

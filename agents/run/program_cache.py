@@ -78,20 +78,22 @@ def program_key(description: dict[str, Any], args: Any) -> str:
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()
 
 
-def _read(path: Path) -> tuple[Any, bytes]:
-    """``(Exported, pickled output tree)`` of an artifact file. The tree stays pickled: loading
-    it imports the modules of its node types, which a compile ahead in a background thread
-    leaves to the main thread (:func:`prefetch`)."""
+def _read(path: Path) -> tuple[Any, bytes, dict[str, Any]]:
+    """``(Exported, pickled output tree, compiler options)`` of an artifact file. The tree stays
+    pickled: loading it imports the modules of its node types, which a compile ahead in a
+    background thread leaves to the main thread (:func:`prefetch`)."""
     record = pickle.loads(path.read_bytes())
-    return jax.export.deserialize(bytearray(record["exported"])), record["out_tree"]
+    return (jax.export.deserialize(bytearray(record["exported"])), record["out_tree"],
+            dict(record["compiler_options"]))
 
 
-def _compile(exp: Any) -> Any:
-    """The exported program ``exp`` compiled (answered by the persistent compilation cache on a
-    repeat), lowered from its own input shapes, so that a compile ahead of use (:func:`prefetch`)
-    and one at use look up the same cache entry, whatever devices the arguments are on."""
+def _compile(exp: Any, options: dict[str, Any]) -> Any:
+    """The exported program ``exp`` compiled with XLA ``options`` (answered by the persistent
+    compilation cache on a repeat), lowered from its own input shapes, so that a compile ahead
+    of use (:func:`prefetch`) and one at use look up the same cache entry, whatever devices the
+    arguments are on."""
     specs = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in exp.in_avals]
-    return jax.jit(exp.call).lower(specs).compile()
+    return jax.jit(exp.call).lower(specs).compile(compiler_options=options or None)
 
 
 def _calling(compiled: Any, out_tree: Any) -> Callable[..., Any]:
@@ -103,16 +105,25 @@ def _calling(compiled: Any, out_tree: Any) -> Callable[..., Any]:
     return call
 
 
-def exported_shapes(args: tuple[Any, ...], description: dict[str, Any]) -> Any | None:
-    """The output of the program :func:`exported` keeps for ``args`` and ``description`` as a
-    pytree of ``jax.ShapeDtypeStruct`` (what ``jax.eval_shape`` gives, without tracing), read
-    from its artifact; None where there is none (or it is unreadable)."""
+def _artifact(folder: Path, description: dict[str, Any], args: Any,
+              options: dict[str, Any]) -> Path:
+    """The artifact file of a program (its key covers the compiler options too)."""
+    return folder / f"{program_key({**description, 'compiler_options': options}, args)}.jaxexport"
+
+
+def exported_shapes(args: tuple[Any, ...], description: dict[str, Any],
+                    compiler_options: dict[str, Any] | None = None) -> Any | None:
+    """The output of the program :func:`exported` keeps for ``args``, ``description`` and
+    ``compiler_options`` as a pytree of ``jax.ShapeDtypeStruct`` (what ``jax.eval_shape``
+    gives, without tracing), read from its artifact; None where there is none (or it is
+    unreadable)."""
     folder = artifact_dir()
-    path = None if folder is None else folder / f"{program_key(description, args)}.jaxexport"
+    path = None if folder is None else _artifact(folder, description, args,
+                                                 dict(compiler_options or {}))
     if path is None or not path.exists():
         return None
     try:
-        exp, tree = _read(path)
+        exp, tree, _ = _read(path)
         out_tree = pickle.loads(tree)
     except Exception:  # unreadable: the caller traces, exported() warns when it is needed
         return None
@@ -133,19 +144,20 @@ def _ahead(path: Path) -> Callable[..., Any] | None:
         return None
 
 
-def exported(fn: Callable[..., Any], args: tuple[Any, ...], description: dict[str, Any]
-             ) -> Callable[..., Any] | None:
-    """``fn`` for arguments shaped like ``args`` (any pytrees of arrays), compiled from its
-    exported program: compiled ahead by :func:`prefetch`, or read from the artifact directory
-    when there, else exported and written there (atomically, with the output's tree
-    structure). The compile itself is answered by the persistent compilation cache on a
-    repeat. None when that cache is off or ``fn`` cannot be exported (with a warning; the
-    caller then compiles it as usual)."""
+def exported(fn: Callable[..., Any], args: tuple[Any, ...], description: dict[str, Any],
+             compiler_options: dict[str, Any] | None = None) -> Callable[..., Any] | None:
+    """``fn`` for arguments shaped like ``args`` (any pytrees of arrays), compiled (with XLA
+    ``compiler_options``, part of the key) from its exported program: compiled ahead by
+    :func:`prefetch`, or read from the artifact directory when there, else exported and
+    written there (atomically, with the output's tree structure and the options). The compile
+    itself is answered by the persistent compilation cache on a repeat. None when that cache is
+    off or ``fn`` cannot be exported (with a warning; the caller then compiles it as usual)."""
     folder = artifact_dir()
     if folder is None:
         return None
+    options = dict(compiler_options or {})
     leaves, in_tree = jax.tree.flatten(args)
-    path = folder / f"{program_key(description, args)}.jaxexport"
+    path = _artifact(folder, description, args, options)
     if path.name not in _USED:
         _USED.append(path.name)
     ahead = _ahead(path)
@@ -154,13 +166,13 @@ def exported(fn: Callable[..., Any], args: tuple[Any, ...], description: dict[st
     loaded = None
     if path.exists():
         try:
-            exp, tree = _read(path)
+            exp, tree, _ = _read(path)
             loaded = exp, pickle.loads(tree)
         except Exception as e:  # any unreadable artifact is exported again
             warnings.warn(f"unreadable program artifact {path} ({type(e).__name__}: {e}); "
                           "exporting it again", stacklevel=2)
     if loaded is not None:
-        return _calling(_compile(loaded[0]), loaded[1])
+        return _calling(_compile(loaded[0], options), loaded[1])
     box: dict[str, Any] = {}
 
     def flat(xs):
@@ -179,8 +191,9 @@ def exported(fn: Callable[..., Any], args: tuple[Any, ...], description: dict[st
         _USED.remove(path.name)
         return None
     folder.mkdir(parents=True, exist_ok=True)
-    atomic_write(path, pickle.dumps({"exported": data, "out_tree": pickle.dumps(box["out_tree"])}))
-    return _calling(_compile(exp), box["out_tree"])
+    atomic_write(path, pickle.dumps({"exported": data, "out_tree": pickle.dumps(box["out_tree"]),
+                                     "compiler_options": options}))
+    return _calling(_compile(exp, options), box["out_tree"])
 
 
 def command_label(argv: Sequence[str], valued: Collection[str] = (),
@@ -255,8 +268,8 @@ def _compile_ahead(path: Path, job: Future) -> None:
     if not job.set_running_or_notify_cancel():
         return
     try:
-        exp, tree = _read(path)
-        job.set_result((_compile(exp), tree))
+        exp, tree, options = _read(path)
+        job.set_result((_compile(exp, options), tree))
     except Exception as e:  # handed to the caller through the future
         job.set_exception(e)
 

@@ -27,6 +27,7 @@ from agents.run.program_cache import (
     remember,
 )
 from agents.run.spec import RunSpec, preset
+from mjxrmp._xla import run_once_compiler_options
 
 
 class Pair(NamedTuple):
@@ -115,7 +116,13 @@ def test_ppo_chunk_from_its_artifact_trains_like_the_direct_compile(cache_dir):
     assert sorted(p.name for p in artifact_dir().iterdir()) == files
     # a resume's restore target, read from the init artifact instead of traced
     keys = seed_keys(SPEC.seeds)
-    assert program_cache.exported_shapes((keys,), {**rebuilt.description, "program": "init"})
+    # the init program runs once: its artifact is keyed and compiled with the run-once options
+    options = run_once_compiler_options(jax.default_backend())
+    assert program_cache.exported_shapes((keys,), {**rebuilt.description, "program": "init"},
+                                         options)
+    if options:  # on the CPU: another key than the default options'
+        assert program_cache.exported_shapes((keys,), {**rebuilt.description, "program": "init"},
+                                             {}) is None
     shapes, traced = rebuilt.state_shapes(keys), jax.eval_shape(rebuilt.init, keys)
     assert jax.tree.structure(shapes) == jax.tree.structure(traced)
     assert [(x.shape, x.dtype) for x in jax.tree.leaves(shapes)] == [

@@ -90,3 +90,30 @@ def test_a_script_run_fills_the_default_cache(tmp_path):
                    env=_script_env(XDG_CACHE_HOME=str(tmp_path / "xdg")), cwd=ROOT,
                    capture_output=True, text=True, timeout=600, check=True)
     assert any(p.name.startswith("jit_simulate") for p in cache.iterdir())
+
+
+def test_run_once_programs_compile_at_a_low_cpu_level(monkeypatch):
+    """A program that runs once (a PPO run's init) compiles at RUN_ONCE_CPU_LEVEL on the CPU,
+    at a lower level where XLA_FLAGS asks for one (the suite's O0), with no options elsewhere;
+    the init it compiles equals the default compile to float32 rounding."""
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=false")
+    level = {"xla_backend_optimization_level": _xla.RUN_ONCE_CPU_LEVEL}
+    assert _xla.run_once_compiler_options("cpu") == level
+    assert _xla.run_once_compiler_options("gpu") == {}
+    monkeypatch.setenv("XLA_FLAGS", "--xla_backend_optimization_level=0")
+    assert _xla.run_once_compiler_options("cpu") == {"xla_backend_optimization_level": 0}
+    monkeypatch.setenv("XLA_FLAGS", "--xla_backend_optimization_level=3")
+    assert _xla.run_once_compiler_options("cpu") == level
+
+
+def test_a_low_level_compile_computes_what_the_default_does():
+    """The same reset-like program (a reset scene of the 3-link environment) compiled with the
+    run-once options and with XLA's defaults agrees to float32 rounding."""
+    import envs  # lazy: only this test builds an environment
+
+    env = envs.make("three_link/env3")
+    keys = jax.random.split(jax.random.PRNGKey(3), 8)
+    lowered = jax.jit(jax.vmap(lambda k: env.reset(k).obs)).lower(keys)
+    low = lowered.compile(compiler_options=_xla.run_once_compiler_options("cpu"))(keys)
+    default = lowered.compile(compiler_options={"xla_backend_optimization_level": 3})(keys)
+    assert float(jax.numpy.max(jax.numpy.abs(low - default))) <= 1e-6
