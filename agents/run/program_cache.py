@@ -106,9 +106,10 @@ def _calling(compiled: Any, out_tree: Any) -> Callable[..., Any]:
 
 
 def _artifact(folder: Path, description: dict[str, Any], args: Any,
-              options: dict[str, Any]) -> Path:
+              options: dict[str, Any] | None) -> Path:
     """The artifact file of a program (its key covers the compiler options too)."""
-    return folder / f"{program_key({**description, 'compiler_options': options}, args)}.jaxexport"
+    described = {**description, "compiler_options": dict(options or {})}
+    return folder / f"{program_key(described, args)}.jaxexport"
 
 
 def exported_shapes(args: tuple[Any, ...], description: dict[str, Any],
@@ -118,8 +119,7 @@ def exported_shapes(args: tuple[Any, ...], description: dict[str, Any],
     gives, without tracing), read from its artifact; None where there is none (or it is
     unreadable)."""
     folder = artifact_dir()
-    path = None if folder is None else _artifact(folder, description, args,
-                                                 dict(compiler_options or {}))
+    path = None if folder is None else _artifact(folder, description, args, compiler_options)
     if path is None or not path.exists():
         return None
     try:

@@ -94,8 +94,7 @@ def test_a_script_run_fills_the_default_cache(tmp_path):
 
 def test_run_once_programs_compile_at_a_low_cpu_level(monkeypatch):
     """A program that runs once (a PPO run's init) compiles at RUN_ONCE_CPU_LEVEL on the CPU,
-    at a lower level where XLA_FLAGS asks for one (the suite's O0), with no options elsewhere;
-    the init it compiles equals the default compile to float32 rounding."""
+    at a lower level where XLA_FLAGS asks for one (the suite's O0), with no options elsewhere."""
     monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=false")
     level = {"xla_backend_optimization_level": _xla.RUN_ONCE_CPU_LEVEL}
     assert _xla.run_once_compiler_options("cpu") == level
