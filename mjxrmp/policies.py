@@ -20,6 +20,7 @@ import jax.numpy as jnp
 
 from mjxrmp.config import check_choice
 from mjxrmp.core import rmp2
+from mjxrmp.core.linalg import cholesky, spd_solve
 from mjxrmp.core.rmp import RMP
 from mjxrmp.geometry import OBSTACLE_SHAPES, Obstacles, point_obstacle_distances
 from mjxrmp.leaves.hand_designed import (
@@ -317,8 +318,8 @@ def residual_rmp_acceleration(
     def leaf_fn(x, xd, goal_, obstacles_, cfg_, A_r_, a_r_):
         out = leaf_rmps(x, xd, goal_, obstacles_, cfg_)
         M_h, f_h = out["target"]
-        a_h = jnp.linalg.solve(M_h[0], f_h[0])
-        B = A_r_ + jnp.linalg.cholesky(M_h[0])
+        a_h = spd_solve(M_h[0], f_h[0])
+        B = A_r_ + cholesky(M_h[0])
         M = jnp.matmul(B, B.T, precision=exact)
         out["target"] = RMP(M[None], jnp.matmul(M, a_r_ + a_h, precision=exact)[None])
         return out

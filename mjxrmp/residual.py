@@ -21,6 +21,7 @@ import jax.numpy as jnp
 
 from mjxrmp import policies
 from mjxrmp.core import rmp2
+from mjxrmp.core.linalg import cholesky, spd_solve
 from mjxrmp.core.rmp import RMP
 from mjxrmp.geometry import Obstacles
 from mjxrmp.leaves.hand_designed import target_rmp
@@ -59,8 +60,8 @@ def residual_parts(cfg: policies.PolicyConfig, q: jax.Array, qd: jax.Array, goal
     end_effector = get(cfg.robot).end_effector
     x, xd, c, J = rmp2.task_kinematics(lambda q_: end_effector(q_)[None], q, qd)
     M_h, f_h = target_rmp(x, xd, goal, cfg.target)
-    return ResidualParts(root.M, root.f, J[0], c[0], jnp.linalg.cholesky(M_h[0]),
-                         jnp.linalg.solve(M_h[0], f_h[0]))
+    return ResidualParts(root.M, root.f, J[0], c[0], cholesky(M_h[0]),
+                         spd_solve(M_h[0], f_h[0]))
 
 
 def residual_from_parts(parts: ResidualParts, A_r: jax.Array, a_r: jax.Array) -> jax.Array:

@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 from jax.experimental import checkify
 
+from mjxrmp.core.linalg import spd_solve
 from mjxrmp.core.rmp import RMP
 
 TaskMap = Callable[..., Any]
@@ -245,8 +246,7 @@ def _resolve(root: RMP) -> jax.Array:
     M, f = _check_root(root)
     scale = jnp.maximum(1.0, RESOLVE_SCALE * jnp.max(jnp.abs(M)))
     M = M / scale + RESOLVE_REGULARIZATION * jnp.eye(M.shape[0], dtype=M.dtype)
-    with jax.default_matmul_precision("highest"):
-        return jnp.linalg.solve(M, f / scale)
+    return spd_solve(M, f / scale)
 
 
 def _run_debug(fn: Callable[..., jax.Array], args: tuple) -> jax.Array:
@@ -295,7 +295,8 @@ def resolve(root: RMP) -> jax.Array:
     """Root acceleration ``q̈ = M⁻¹ f`` with the original numerics (eq 3.10).
 
     ``M`` and ``f`` are divided by ``max(1, 0.01·max|M_ij|)``, ``1e-3·I`` is added to ``M``,
-    and the linear system is solved.
+    and the symmetric positive-definite system is solved by Cholesky
+    (:func:`mjxrmp.core.linalg.spd_solve`).
     """
     return _resolve(root)
 
