@@ -250,7 +250,8 @@ def _resolve(root: RMP) -> jax.Array:
 
 
 def _run_debug(fn: Callable[..., jax.Array], args: tuple) -> jax.Array:
-    """Run ``fn(*args)`` under checkify (float checks + named checks); raise on the first error.
+    """Run ``fn(*args)`` under checkify (named checks + float checks); raise a named error (with
+    the first NaN-making operation, if any) before a float error.
 
     The inputs are traced arguments (not closed-over constants) so that every operation that
     depends on them is checked.
@@ -267,11 +268,17 @@ def _run_debug(fn: Callable[..., jax.Array], args: tuple) -> jax.Array:
             if bool(jnp.any(bad)):
                 where = name + jax.tree_util.keystr(path)
                 raise ValueError(f"{where} contains non-finite values at {jnp.argwhere(bad)[0]}")
-    # Primitive-level float checks first (they name the operation and source line that made the
-    # first NaN); then the named stage checks (non-finite inputs, constants or leaf outputs).
-    for errors in (checkify.float_checks, checkify.user_checks):
-        err, out = checkify.checkify(fn, errors=errors)(*args)
-        err.throw()
+    # The named stage checks (non-finite constants or leaf outputs, leaf metrics that are not
+    # positive semi-definite) say which leaf is at fault; the primitive-level float checks say
+    # which operation made the first NaN. A named error is raised with that operation appended
+    # (a bad leaf metric makes the resolve's Cholesky the first NaN, docs/design.md §5.10).
+    float_err, _ = checkify.checkify(fn, errors=checkify.float_checks)(*args)
+    named_err, out = checkify.checkify(fn, errors=checkify.user_checks)(*args)
+    named, first_nan = named_err.get(), float_err.get()
+    if named is not None:
+        raise checkify.JaxRuntimeError(
+            named if first_nan is None else f"{named}\n(the first NaN: {first_nan})")
+    float_err.throw()
     return out
 
 

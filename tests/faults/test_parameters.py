@@ -141,7 +141,10 @@ def test_empty_configuration_is_refused_by_name(three_link):
 
 def test_debug_mode_names_a_leaf_with_a_negative_definite_metric(three_link):
     """issue case 5: a leaf with a negative-definite metric silently reversed the acceleration;
-    debug mode now names the leaf and the member. Valid policies pass debug mode unchanged."""
+    debug mode now names the leaf and the member. Without debug mode the root is then not
+    positive definite and its Cholesky resolve gives NaN, which the trainers stop on
+    (docs/design.md §5.5, §5.10), instead of a number. Valid policies pass debug mode
+    unchanged."""
     cfg, q, qd, goal, obstacles = three_link
 
     def reversed_target(x, xd, goal_, obstacles_, cfg_):
@@ -153,7 +156,7 @@ def test_debug_mode_names_a_leaf_with_a_negative_definite_metric(three_link):
     # the plain (non-debug) calls compiled, not run op by op; debug mode runs eagerly
     plain = jax.jit(rmp2.acceleration, static_argnums=(0, 1))(policies.task_map,
                                                                reversed_target, *args)
-    assert np.all(np.isfinite(plain))  # without debug mode: silently wrong
+    assert not np.all(np.isfinite(plain))  # without debug mode: NaN, not a wrong number
     with pytest.raises(Exception, match=r"leaf_fn output\['target'\]: metric M is not positive "
                                         r"semi-definite; member 0 has minimum eigenvalue -"):
         rmp2.acceleration(policies.task_map, reversed_target, *args, debug=True)
