@@ -111,5 +111,4 @@ def spd_solve(M: jax.Array, f: jax.Array) -> jax.Array:
     if n > MAX_UNROLLED:
         sym = 0.5 * (M + jnp.swapaxes(M, -1, -2))
         return jax.scipy.linalg.cho_solve((jnp.linalg.cholesky(sym), True), f[..., None])[..., 0]
-    M, f = jnp.broadcast_arrays(M, f[..., None])
-    return _solve_unrolled(M, f[..., 0])
+    return _solve_unrolled(M, f)
