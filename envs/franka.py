@@ -48,6 +48,7 @@ class FrankaReach(ReachEnv):
         self.torus = (0.5, 0.3, 0.5, 0.0, math.pi)  # major, minor, height, angle centre/range
         self.obstacle_radius_range = (0.05, 0.10)
         self.min_goal_distance = min_goal_distance
+        self.model_settings = {"min_goal_distance": min_goal_distance}
         super().__init__(
             xml=franka_mjcf(kp=kp, kv=kv, armature=armature),
             num_obstacles=num_obstacles,
@@ -55,14 +56,19 @@ class FrankaReach(ReachEnv):
             **kwargs,
         )
 
-    def _candidate(self, key: jax.Array, q0: jax.Array):
+    def default_scene(self) -> dict[str, jax.Array]:
+        """``torus`` (major, minor, centre height, angle centre, angle range: the region of the
+        goal and the ball centres) and ``obstacle_radius`` (min, max) as float32 arrays."""
+        return {"torus": jnp.asarray(self.torus, jnp.float32),
+                "obstacle_radius": jnp.asarray(self.obstacle_radius_range, jnp.float32)}
+
+    def _candidate(self, key: jax.Array, q0: jax.Array, scene: dict[str, jax.Array]):
         k_p, k_r = jax.random.split(key)
         n = self.num_obstacles
-        pts, pts_ok = half_torus_volume_uniform(k_p, (n + 1,), *self.torus)
+        pts, pts_ok = half_torus_volume_uniform(k_p, (n + 1,), *scene["torus"])
         goal, centers = pts[0], pts[1:]
-        radius = jax.random.uniform(
-            k_r, (n,), minval=self.obstacle_radius_range[0], maxval=self.obstacle_radius_range[1]
-        )
+        r_lo, r_hi = scene["obstacle_radius"]
+        radius = jax.random.uniform(k_r, (n,), minval=r_lo, maxval=r_hi)
         obstacles = Obstacles(centers, radius, jnp.ones((n,), jnp.float32))
         ee0 = self.robot.end_effector(q0)
         margin = self._scene_margin(q0, goal, obstacles)

@@ -117,7 +117,12 @@ class ReachEnv(Env):
         constraint_stages: bool = False,
         unroll_substeps: bool | None = None,
     ):
+        settings = dict(locals())  # the arguments (first statement: nothing else is local yet)
         name = type(self).__name__
+        #: Everything but the scene that shapes the environment (:meth:`shares_model`): these
+        #: arguments and a subclass's own (set before it calls this constructor).
+        self.model_settings = {**getattr(self, "model_settings", {}), **{
+            k: v for k, v in settings.items() if k not in ("self", "__class__")}}
         self.observation_variant = check_choice(observation, f"{name}.observation", OBSERVATIONS)
         self.num_obstacles = check_int(num_obstacles, f"{name}.num_obstacles")
         self.action_limit = check_float(action_limit, f"{name}.action_limit")
@@ -193,21 +198,36 @@ class ReachEnv(Env):
         return layout(sizes)
 
     # ------------------------------------------------------------------ scene sampling
-    def sample_scene(self, key: jax.Array):
-        """``(q0, qd0, goal, obstacles, ok)`` for one episode.
+    def default_scene(self) -> dict[str, jax.Array]:
+        """The scene sampler's parameters as data (float32 arrays; the setup's goal region,
+        obstacle region and radii): what :meth:`reset` samples from unless given another
+        scene, and what ``state.info["scene"]`` carries (docs/design.md §2.3)."""
+        raise NotImplementedError
+
+    def shares_model(self, other: Env) -> bool:
+        """Whether ``other`` differs from this environment at most in its scene parameters
+        (:meth:`default_scene`): same class, MJCF and settings, so one compiled program runs
+        both, each environment row with its own scene."""
+        return type(other) is type(self) and other.model_settings == self.model_settings
+
+    def sample_scene(self, key: jax.Array, scene: dict[str, jax.Array] | None = None):
+        """``(q0, qd0, goal, obstacles, ok)`` for one episode of ``scene`` (default
+        :meth:`default_scene`).
 
         The initial state is drawn once; goal and obstacles are drawn as ``candidates``
         candidate pairs against it (the thesis re-samples goal and obstacles when a clearance
         rule fails), so the robot's kinematics is evaluated once per reset, not per candidate.
         """
+        scene = self.default_scene() if scene is None else scene
         k_q, k_scene = jax.random.split(key)
         q0, qd0 = self._sample_q0(k_q)
         (goal, obstacles), ok = sample_first_valid(k_scene, self.candidates,
-                                                   lambda k: self._candidate(k, q0))
+                                                   lambda k: self._candidate(k, q0, scene))
         return q0, qd0, goal, obstacles, ok
 
-    def _candidate(self, key: jax.Array, q0: jax.Array):
-        """``((goal, obstacles), margin)``: one candidate and its clearance margin (≥ 0: valid)."""
+    def _candidate(self, key: jax.Array, q0: jax.Array, scene: dict[str, jax.Array]):
+        """``((goal, obstacles), margin)``: one candidate of ``scene`` and its clearance margin
+        (≥ 0: valid)."""
         raise NotImplementedError
 
     def _scene_margin(self, q0: jax.Array, goal: jax.Array, obstacles: Obstacles) -> jax.Array:
@@ -305,10 +325,13 @@ class ReachEnv(Env):
         return {"goal_distance": goal_distance,
                 "success": (goal_distance < self.success_radius).astype(jnp.float32)}
 
-    def reset(self, rng: jax.Array) -> State:
-        """A new episode: scene from :meth:`sample_scene`, servos holding the initial state."""
+    def reset(self, rng: jax.Array, scene: dict[str, jax.Array] | None = None) -> State:
+        """A new episode: goal, obstacles and initial state from :meth:`sample_scene` of
+        ``scene`` (default :meth:`default_scene`; kept in ``info["scene"]``, from which the
+        auto-reset samples the next episode), servos holding the initial state."""
+        scene = self.default_scene() if scene is None else scene
         k_scene, k_next = jax.random.split(rng)
-        q0, qd0, goal, obstacles, ok = self.sample_scene(k_scene)
+        q0, qd0, goal, obstacles, ok = self.sample_scene(k_scene, scene)
         data = self._data0.replace(
             qpos=q0, qvel=qd0, ctrl=jnp.concatenate([q0, qd0]).astype(self._data0.ctrl.dtype)
         )
@@ -317,7 +340,7 @@ class ReachEnv(Env):
         metrics = {**self._goal_metrics(q0, goal), "collision": z, "nonfinite": z,
                    "min_obstacle_distance": self._robot_clearance(q0, obstacles),
                    "tracking_error": z}
-        info = {"rng": k_next, "goal": goal, "obstacles": obstacles,
+        info = {"rng": k_next, "goal": goal, "obstacles": obstacles, "scene": scene,
                 "sampler_ok": ok.astype(jnp.float32), **episode_info()}
         return State(data, obs, z, z, metrics, info)
 

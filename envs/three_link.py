@@ -71,16 +71,23 @@ class ThreeLinkReach(ReachEnv):
         self.obstacle_radius_range = (0.05, 0.10)
         if num_obstacles is None:
             num_obstacles = 1 if setup == "env1" else 3
+        self.model_settings = {"obstacle_sampler": obstacle_sampler}
         super().__init__(xml=three_link_mjcf(kp=kp, kv=kv), num_obstacles=num_obstacles, **kwargs)
 
-    def _candidate(self, key: jax.Array, q0: jax.Array):
+    def default_scene(self) -> dict[str, jax.Array]:
+        """``goal_region`` (r_min, r_max, angle centre, angle range), ``obstacle_region``
+        (r_min, r_max of the centres) and ``obstacle_radius`` (min, max) as float32 arrays."""
+        return {"goal_region": jnp.asarray(self.goal_region, jnp.float32),
+                "obstacle_region": jnp.asarray(self.obstacle_region, jnp.float32),
+                "obstacle_radius": jnp.asarray(self.obstacle_radius_range, jnp.float32)}
+
+    def _candidate(self, key: jax.Array, q0: jax.Array, scene: dict[str, jax.Array]):
         k_g, k_c, k_r = jax.random.split(key, 3)
-        goal = annulus(k_g, (), *self.goal_region)
+        goal = annulus(k_g, (), *scene["goal_region"])
         n = self.num_obstacles
-        lo, hi = self.obstacle_region
+        lo, hi = scene["obstacle_region"]
         centers = annulus(k_c, (n,), lo, hi, area_uniform=self.obstacle_sampler == "thesis")
-        radius = jax.random.uniform(
-            k_r, (n,), minval=self.obstacle_radius_range[0], maxval=self.obstacle_radius_range[1]
-        )
+        r_lo, r_hi = scene["obstacle_radius"]
+        radius = jax.random.uniform(k_r, (n,), minval=r_lo, maxval=r_hi)
         obstacles = Obstacles(centers, radius, jnp.ones((n,), jnp.float32))
         return (goal, obstacles), self._scene_margin(q0, goal, obstacles)

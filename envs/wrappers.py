@@ -65,9 +65,10 @@ class AutoResetWrapper(Wrapper):
     """Resets done episodes with a *new* scene (goal, obstacles, initial state).
 
     Apply it outermost (after the vmap and episode wrappers). At each step every finished
-    episode gets ``env.reset(state.info["rng"])``: pipeline state, observation and the
-    environment's own ``info`` entries (goal, obstacles, key, per-episode accumulators) are
-    replaced; brax's episode bookkeeping (:data:`EPISODE_KEYS`), ``reward``,
+    episode gets ``env.reset(state.info["rng"])`` (of its own scene, ``state.info["scene"]``,
+    for environments that keep one: :meth:`envs.reaching.ReachEnv.reset`): pipeline state,
+    observation and the environment's own ``info`` entries (goal, obstacles, key, per-episode
+    accumulators) are replaced; brax's episode bookkeeping (:data:`EPISODE_KEYS`), ``reward``,
     ``done`` and ``metrics`` of the terminal step are kept, as in brax.
 
     :meth:`step` computes a reset for every environment and selects it where an episode ended.
@@ -105,8 +106,28 @@ class AutoResetWrapper(Wrapper):
             info=info,
         )
 
+    def reset(self, rng: jax.Array, scene: dict[str, jax.Array] | None = None) -> State:
+        """The batch's first episodes (``rng`` of shape ``(B, 2)``); with ``scene`` (leaves with
+        a leading ``B`` axis) each environment samples from its own scene parameters
+        (:meth:`envs.reaching.ReachEnv.default_scene`), which its later episodes keep."""
+        state = self.env.reset(rng)
+        if scene is None:
+            return state
+        fresh = self._fresh(rng, scene)
+        return fresh.replace(info={**fresh.info,
+                                   **{k: state.info[k] for k in EPISODE_KEYS}})
+
+    def _fresh(self, rng: jax.Array, scene: dict[str, jax.Array] | None) -> State:
+        """New episodes of the batch from the keys ``rng``: the wrapped environment's reset,
+        or, for environments that keep their scene in ``info["scene"]``, the base
+        environment's reset of each row's own scene (the wrappers in between — vmap, episode
+        limit — add only :data:`EPISODE_KEYS`, which a restart keeps from the old state)."""
+        if scene is None:
+            return self.env.reset(rng)
+        return jax.vmap(self.env.unwrapped.reset)(rng, scene)
+
     def _reset_done(self, state: State) -> State:
-        return self._restart(state, self.env.reset(state.info["rng"]))
+        return self._restart(state, self._fresh(state.info["rng"], state.info.get("scene")))
 
     def step(self, state: State, action: jax.Array, axis_name: str | None = None) -> State:
         """Step every environment; finished episodes restart from a freshly sampled scene (on
@@ -133,8 +154,10 @@ class AutoResetWrapper(Wrapper):
         if depth < 1:
             raise ValueError(f"depth must be a positive integer, got {depth}")
 
+        scene = state.info.get("scene")
+
         def following(rng, _):
-            start = self.env.reset(rng)
+            start = self._fresh(rng, scene)
             return start.info["rng"], start
 
         _, starts = jax.lax.scan(following, state.info["rng"], None, length=depth)

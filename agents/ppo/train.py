@@ -51,7 +51,8 @@ from envs.wrappers import AutoResetWrapper, wrap
 class Trainer:
     """The pieces of one PPO program (see :func:`make_trainer`); every function is jittable.
 
-    * ``init(key) -> TrainState``;
+    * ``init(key, scene=None) -> TrainState`` (``scene``: the environments' scene
+      parameters, default the environment's own);
     * ``rollout(ts, key) -> (ts, Transition)``: ``rollout_length`` steps of every environment;
     * ``update(ts, transitions, key) -> (ts, metrics)``: GAE, the SGD epochs, statistics;
     * ``run(ts, num_iterations) -> (ts, metrics)``: ``num_iterations`` (static) iterations in a
@@ -63,7 +64,7 @@ class Trainer:
     policy: nn.Module
     value_net: nn.Module
     env: Env
-    init: Callable[[jax.Array], TrainState]
+    init: Callable[..., TrainState]
     rollout: Callable[[TrainState, jax.Array], tuple[TrainState, Transition]]
     update: Callable[[TrainState, Transition, jax.Array], tuple[TrainState, dict]]
     run: Callable[[TrainState, int], tuple[TrainState, dict]]
@@ -107,15 +108,23 @@ def make_networks(config: PPOConfig, action_size: int,
 def _make_init(env: Env, nets: PPONetworks, tx: optax.GradientTransformation,
                config: PPOConfig, obs_size: int, constrain: Callable[..., Any]
                ) -> Callable[[jax.Array], TrainState]:
-    """``init(key) -> TrainState``: network parameters, optimiser state, ``num_envs`` reset
-    environments and the observation statistics (from the first observations when used)."""
+    """``init(key, scene=None) -> TrainState``: network parameters, optimiser state,
+    ``num_envs`` reset environments (of ``scene``, the environment's scene parameters, for
+    all of them, where given: :meth:`envs.reaching.ReachEnv.default_scene`) and the
+    observation statistics (from the first observations when used)."""
 
-    def init(key):
+    def init(key, scene=None):
         key = raw_key(key)
         k_pol, k_val, k_env = jax.random.split(key, 3)
         dummy = jnp.zeros((obs_size,), jnp.float32)
         params = {"policy": nets.policy.init(k_pol, dummy), "value": nets.value.init(k_val, dummy)}
-        state = constrain(env.reset(raw_keys(k_env, config.num_envs)))
+        keys = raw_keys(k_env, config.num_envs)
+        if scene is None:
+            state = constrain(env.reset(keys))
+        else:
+            scene = jax.tree.map(lambda x: jnp.broadcast_to(x, (config.num_envs, *x.shape)),
+                                 scene)
+            state = constrain(env.reset(keys, scene))
         stats = init_stats(obs_size)
         if config.normalize_observations:
             stats = update_stats(stats, state.obs)

@@ -36,8 +36,8 @@ class Program:
     init: Callable
     run: Callable
     executables: dict[tuple[int, Any], Any] = dataclasses.field(default_factory=dict)
-    #: ``init`` per seed count (from its exported program where there is one).
-    inits: dict[int, Any] = dataclasses.field(default_factory=dict)
+    #: ``init`` per (row count, with scenes) (from its exported program where there is one).
+    inits: dict[tuple[int, bool], Any] = dataclasses.field(default_factory=dict)
     compile_seconds: float = 0.0
     #: What shapes the program (JSON data), for :mod:`agents.run.program_cache`; None keeps
     #: nothing between processes (sharded programs).
@@ -66,20 +66,25 @@ class Program:
             return None
         return exported(fn, args, {**self.description, **what}, compiler_options)
 
-    def initial_state(self, keys: jax.Array) -> TrainState:
-        """``init(keys)``, compiled once per seed count, from the exported init program of an
-        earlier process where there is one (the time is added to ``compile_seconds``). It runs
-        once, so it compiles with :func:`mjxrmp._xla.run_once_compiler_options` (on the CPU a
-        lower optimisation level: docs/design.md §5.6)."""
-        n = keys.shape[0]
+    def initial_state(self, keys: jax.Array, scenes: dict[str, jax.Array] | None = None
+                      ) -> TrainState:
+        """``init(keys)``, or ``init(keys, scenes)`` (each row's environments sample from its
+        own scene parameters, leaves with a leading row axis: a packed sweep over setups),
+        compiled once per row count, from the exported init program of an earlier process
+        where there is one (the time is added to ``compile_seconds``). It runs once, so it
+        compiles with :func:`mjxrmp._xla.run_once_compiler_options` (on the CPU a lower
+        optimisation level: docs/design.md §5.6)."""
+        args = (keys,) if scenes is None else (keys, scenes)
+        n = (keys.shape[0], scenes is not None)
         if n not in self.inits:
             t0 = time.perf_counter()
             options = run_once_compiler_options(jax.default_backend())
-            init = self._from_artifact(self.init, (keys,), {"program": "init"}, options)
-            self.inits[n] = init or self.init.lower(keys).compile(
+            what = {"program": "init"} if scenes is None else {"program": "init_scenes"}
+            init = self._from_artifact(self.init, args, what, options)
+            self.inits[n] = init or self.init.lower(*args).compile(
                 compiler_options=options or None)
             self.compile_seconds += time.perf_counter() - t0
-        return self.inits[n](keys)
+        return self.inits[n](*args)
 
     def state_shapes(self, keys: jax.Array) -> Any:
         """``jax.eval_shape(init, keys)`` (the state's structure, shapes and dtypes as

@@ -1,13 +1,16 @@
-"""Packed sweeps: one compiled program trains every run of a grid of scalar PPO
-hyper-parameters × seeds (docs/design.md §2.3).
+"""Packed sweeps: one compiled program trains every run of a grid of environment setups ×
+scalar PPO hyper-parameters × seeds (docs/design.md §2.3).
 
-A :class:`SweepSpec` is a base :class:`agents.run.spec.RunSpec` and a grid over names of
-:data:`agents.ppo.hparams.SWEEPABLE`; its *points* are the grid's cartesian product, each an
-ordinary ``RunSpec`` (the base with the point's values) trained for the base's seeds. All
-``points × seeds`` runs share the program of the first point (:func:`agents.run.program.build`):
-the runs are rows of its ``vmap``, and each row carries its own values in
-``TrainState.hparams`` (:mod:`agents.ppo.hparams`), so a point computes what its separate run
-computes up to float32 rounding (its values are data instead of constants).
+A :class:`SweepSpec` is a base :class:`agents.run.spec.RunSpec`, a list of environment setups
+that share a model (e.g. ``three_link/env2`` and ``three_link/env3``, which differ only in the
+goal region) and a grid over names of :data:`agents.ppo.hparams.SWEEPABLE`; its *points* are
+the setups × the grid's cartesian product, each an ordinary ``RunSpec`` (the base with the
+point's environment and values) trained for the base's seeds. All ``points × seeds`` runs share
+the program of the first point (:func:`agents.run.program.build`): the runs are rows of its
+``vmap``; each row carries its own values in ``TrainState.hparams`` (:mod:`agents.ppo.hparams`)
+and its environments their own scene parameters in ``info["scene"]``
+(:meth:`envs.reaching.ReachEnv.reset`), so a point computes what its separate run computes up
+to float32 rounding (its values are data instead of constants).
 
 :func:`run_sweep` writes ``<out>/sweep.json`` (the sweep), ``<out>/sweep.csv`` (one row per point:
 its values and final metrics, mean ± std over seeds), ``<out>/sweep_curves.png`` and, per point,
@@ -31,6 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+import envs
 from agents.ppo import TrainState
 from agents.ppo.hparams import SWEEPABLE
 from agents.run import checkpoint
@@ -55,19 +59,29 @@ from mjxrmp.config import check_float
 
 @dataclasses.dataclass(frozen=True)
 class SweepSpec:
-    """A grid ``((name, (value, ...)), ...)`` of :data:`SWEEPABLE` hyper-parameters over the
-    ``base`` run (its seeds, length and logging cadence are every point's)."""
+    """A grid ``((name, (value, ...)), ...)`` of :data:`SWEEPABLE` hyper-parameters and a list
+    of environment setups ``envs`` (names for :func:`envs.make` that differ only in their scene
+    parameters, e.g. ``three_link/env2`` and ``three_link/env3``; empty: the base's
+    environment) over the ``base`` run (its policy, seeds, length and logging cadence are every
+    point's)."""
 
     base: RunSpec
-    grid: tuple[tuple[str, tuple[float, ...]], ...]
+    grid: tuple[tuple[str, tuple[float, ...]], ...] = ()
+    envs: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if not isinstance(self.base, RunSpec):
             raise TypeError(f"SweepSpec.base must be a RunSpec, got {type(self.base).__name__}")
         grid = tuple((name, tuple(values)) for name, values in dict(self.grid).items())
-        if not grid or len(grid) != len(self.grid):
-            raise ValueError(f"SweepSpec.grid must name each hyper-parameter once and at least "
-                             f"one, got {self.grid!r}")
+        setups = tuple(self.envs)
+        if len(set(setups)) != len(setups) or len(setups) == 1 or not all(
+                isinstance(e, str) for e in setups):
+            raise ValueError(f"SweepSpec.envs must list two or more distinct environment names "
+                             f"(or none), got {self.envs!r}")
+        object.__setattr__(self, "envs", setups)
+        if (not grid and not setups) or len(grid) != len(self.grid):
+            raise ValueError(f"SweepSpec.grid must name each hyper-parameter once, and a sweep "
+                             f"needs a grid or two or more envs; got grid={self.grid!r}")
         for name, values in grid:
             if name not in SWEEPABLE:
                 raise ValueError(f"SweepSpec.grid: {name!r} cannot be swept; sweepable names "
@@ -81,20 +95,23 @@ class SweepSpec:
         self.points()  # every point's PPOConfig validates its values
 
     def points(self) -> list[tuple[str, RunSpec]]:
-        """``(name, spec)`` per point of the grid, in row-major order of :attr:`grid`."""
+        """``(name, spec)`` per point: every env of :attr:`envs` (outermost), then the grid in
+        row-major order of :attr:`grid`."""
         names = [name for name, _ in self.grid]
         out = []
-        for values in itertools.product(*(v for _, v in self.grid)):
-            point = dict(zip(names, values, strict=True))
-            spec = dataclasses.replace(self.base,
-                                       ppo=dataclasses.replace(self.base.ppo, **point))
-            out.append((",".join(f"{k}={v:g}" for k, v in point.items()), spec))
+        for env in self.envs or (self.base.env,):
+            for values in itertools.product(*(v for _, v in self.grid)):
+                point = dict(zip(names, values, strict=True))
+                spec = dataclasses.replace(self.base, env=env,
+                                           ppo=dataclasses.replace(self.base.ppo, **point))
+                label = [f"env={env.replace('/', '-')}"] if self.envs else []
+                out.append((",".join(label + [f"{k}={v:g}" for k, v in point.items()]), spec))
         return out
 
     def to_json(self) -> dict[str, Any]:
         """The sweep as JSON data (``sweep.json``)."""
         return {"base": self.base.to_json(), "grid": {k: list(v) for k, v in self.grid},
-                "points": [name for name, _ in self.points()]}
+                "envs": list(self.envs), "points": [name for name, _ in self.points()]}
 
 
 def parse_grid(items: list[str]) -> tuple[tuple[str, tuple[float, ...]], ...]:
@@ -115,11 +132,34 @@ def parse_grid(items: list[str]) -> tuple[tuple[str, tuple[float, ...]], ...]:
 
 
 def _rows(sweep: SweepSpec) -> tuple[dict[str, jax.Array], list[str]]:
-    """``TrainState.hparams`` of every row (point-major, then seed) and the rows' names."""
+    """``TrainState.hparams`` of every row (point-major, then seed; None without a grid) and
+    the rows' names."""
     points, seeds = sweep.points(), sweep.base.seeds
     hp = {k: jnp.asarray([getattr(spec.ppo, k) for _, spec in points for _ in seeds],
                          jnp.float32) for k, _ in sweep.grid}
-    return hp, [f"{name} seed {s}" for name, _ in points for s in seeds]
+    return hp or None, [f"{name} seed {s}" for name, _ in points for s in seeds]
+
+
+def row_scenes(sweep: SweepSpec) -> dict[str, jax.Array] | None:
+    """Every row's scene parameters (point-major, then seed;
+    :meth:`envs.reaching.ReachEnv.default_scene` of the point's environment), or None when the
+    sweep has one environment. An error names an environment that does not share the first
+    one's model (only the scene parameters may differ)."""
+    if not sweep.envs:
+        return None
+    first = envs.make(sweep.envs[0]).unwrapped
+    scenes = {}
+    for name in sweep.envs:
+        env = envs.make(name).unwrapped
+        if not (hasattr(first, "shares_model") and first.shares_model(env)):
+            raise ValueError(
+                f"SweepSpec.envs: {name!r} does not differ from {sweep.envs[0]!r} only in its "
+                f"scene parameters (observation size {env.observation_size} vs "
+                f"{first.observation_size}); environments that differ in their model (robot, "
+                f"obstacle count, settings) must be separate sweeps")
+        scenes[name] = env.default_scene()
+    per_row = [scenes[spec.env] for _, spec in sweep.points() for _ in sweep.base.seeds]
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *per_row)
 
 
 class _SweepLog:
@@ -180,7 +220,8 @@ def initial_rows(program: Program, sweep: SweepSpec) -> TrainState:
     its hyper-parameters, for ``program`` (:func:`agents.run.program.build` of the first
     point)."""
     keys = seed_keys(sweep.base.seeds)
-    state = program.initial_state(jnp.concatenate([keys] * len(sweep.points())))
+    state = program.initial_state(jnp.concatenate([keys] * len(sweep.points())),
+                                  row_scenes(sweep))
     return state._replace(hparams=_rows(sweep)[0])
 
 
@@ -215,7 +256,8 @@ def final_table(sweep: SweepSpec, histories: list[dict[str, np.ndarray]]) -> lis
     episodes, :func:`episode_window`; NaN before any episode has finished)."""
     rows = []
     for (name, spec), hist in zip(sweep.points(), histories, strict=True):
-        row: dict[str, Any] = {"point": name, **{k: getattr(spec.ppo, k) for k, _ in sweep.grid}}
+        row: dict[str, Any] = {"point": name, **({"env": spec.env} if sweep.envs else {}),
+                               **{k: getattr(spec.ppo, k) for k, _ in sweep.grid}}
         last = hist["mean_reward"][:, -1] if hist else np.full(1, np.nan)
         row["mean_reward"], row["mean_reward_std"] = float(np.mean(last)), float(np.std(last))
         for key, scale in (("mean_episode_return", 1.0), ("safe_fraction", 100.0),
@@ -252,7 +294,7 @@ def _write_outputs(sweep: SweepSpec, out_dir: str, histories: list[dict[str, np.
             ax.plot(np.arange(1, curve.size + 1), curve, lw=1.3, label=name)
     ax.set_xlabel("iteration")
     ax.set_ylabel("mean episode return (mean over seeds)")
-    ax.set_title(f"{sweep.base.policy} on {sweep.base.env}: sweep")
+    ax.set_title(f"{sweep.base.policy} on {', '.join(sweep.envs or (sweep.base.env,))}: sweep")
     ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
     fig.tight_layout()
@@ -271,6 +313,7 @@ def run_sweep(sweep: SweepSpec, out_dir: str, resume: bool = False, progress: bo
         os.makedirs(out_dir, exist_ok=True)
     elif not os.path.isdir(out_dir):
         raise FileNotFoundError(f"resume=True but {out_dir} does not exist (no sweep to resume)")
+    row_scenes(sweep)  # refuses setups that do not share a model before anything is written
     points = sweep.points()
     dirs = [os.path.join(out_dir, name) for name, _ in points]
     with lock_run_directory(out_dir):

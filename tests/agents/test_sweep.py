@@ -101,3 +101,60 @@ def test_bad_grids_are_refused():
         resolve(BASE.ppo, {"lr": 1.0})
     with pytest.raises(FileNotFoundError):
         run_sweep(SweepSpec(BASE, GRID), "/nonexistent/sweep", resume=True)
+
+
+#: Two setups that share a model (env2 and env3 differ only in the goal region) in one program.
+SETUPS = SweepSpec(dataclasses.replace(BASE, env="three_link/env2"),
+                   envs=("three_link/env2", "three_link/env3"))
+
+
+@pytest.fixture(scope="module")
+def setups_dir(tmp_path_factory):
+    out = str(tmp_path_factory.mktemp("setups"))
+    return out, run_sweep(SETUPS, out, progress=False)
+
+
+def test_each_setup_equals_its_separate_run(setups_dir, tmp_path):
+    """acceptance 1 for setups as data: env2 and env3 rows of one program against the two
+    separate runs (each with its own environment), to float32 rounding."""
+    out, result = setups_dir
+    points = SETUPS.points()
+    assert [name for name, _ in points] == ["env=three_link-env2", "env=three_link-env3"]
+    for i, (name, spec) in enumerate(points):
+        alone = run_training(spec, str(tmp_path / f"s{i}"), progress=False)
+        rows = slice(2 * i, 2 * i + 2)
+        for a, b in zip(_params(alone.state), _params(result.state), strict=True):
+            np.testing.assert_allclose(b[rows], a, rtol=2e-4, atol=2e-6)
+        for k in ("mean_reward", "loss", "approx_kl"):
+            np.testing.assert_allclose(result.history[k][rows], alone.history[k],
+                                       rtol=2e-3, atol=1e-6)
+        np.testing.assert_allclose(np.asarray(result.state.env_state.info["goal"])[rows],
+                                   np.asarray(alone.state.env_state.info["goal"]), atol=1e-6)
+        assert load_run(f"{out}/{name}").spec == spec
+    with open(f"{out}/sweep.csv") as f:
+        assert [r["env"] for r in csv.DictReader(f)] == list(SETUPS.envs)
+    # the setups really differ: env2's goals keep to its narrower annulus, env3's do not
+    goal_r = np.linalg.norm(np.asarray(result.state.env_state.info["goal"]), axis=-1)
+    assert goal_r[:2].max() <= 0.475 + 1e-5 and goal_r[:2].min() >= 0.275 - 1e-5
+    assert goal_r[2:].max() > 0.475 or goal_r[2:].min() < 0.275
+
+
+def test_resumed_setups_sweep_equals_the_uninterrupted_one(setups_dir, tmp_path):
+    _, full = setups_dir
+    half = dataclasses.replace(SETUPS.base, ppo=dataclasses.replace(BASE.ppo, total_iterations=2))
+    out = str(tmp_path / "resumed")
+    run_sweep(dataclasses.replace(SETUPS, base=half), out, progress=False)
+    resumed = run_sweep(SETUPS, out, resume=True, progress=False)
+    for a, b in zip(jax.tree.leaves(full.state), jax.tree.leaves(resumed.state), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_setups_that_differ_in_their_model_are_refused(tmp_path):
+    with pytest.raises(ValueError, match="two or more distinct"):
+        SweepSpec(BASE, envs=("three_link/env2",))
+    with pytest.raises(ValueError, match="a grid or two or more envs"):
+        SweepSpec(BASE)
+    mixed = SweepSpec(BASE, envs=("three_link/env2", "three_link/env1"))
+    with pytest.raises(ValueError, match=r"'three_link/env1' does not differ .* only in its scene"):
+        run_sweep(mixed, str(tmp_path / "mixed"), progress=False)
+    assert not (tmp_path / "mixed" / "sweep.json").exists()
