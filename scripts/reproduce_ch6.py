@@ -67,6 +67,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--no-profile", action="store_true",
                    help="skip timing one iteration's phases into speed.json (it compiles them)")
+    p.add_argument("--no-pack", action="store_true",
+                   help="train every setup as its own program (default: setups that share a "
+                        "model, env2 and env3, train packed in one program per policy)")
     args = p.parse_args(argv)
     try:
         reproduce(args.stage, args.runs, args.figures, args.smooth, args.baseline_episodes,
@@ -74,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
                   policies=args.policies, seeds=args.seeds, preset_name=args.preset,
                   iterations=args.iterations, log_every=args.log_every,
                   checkpoint_every=args.checkpoint_every, progress=not args.no_progress,
-                  profile=not args.no_profile)
+                  profile=not args.no_profile, pack=not args.no_pack)
     except FileNotFoundError as e:
         raise SystemExit(str(e)) from None
     return 0

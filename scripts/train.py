@@ -18,10 +18,12 @@ Examples::
     python scripts/train.py --out runs/my_run --resume
     python scripts/train.py --set learning_rate=1e-4 --set total_iterations=50
     python scripts/train.py --seeds 0 1 --grid learning_rate=1e-4,3e-4 --grid ent_coef=0,0.01
+    python scripts/train.py --env three_link/env2 three_link/env3 --seeds 0 1 2 3
 
-``--grid NAME=V1,V2,...`` (repeatable) trains a packed sweep instead: every point of the grid ×
-every seed in one compiled program (:mod:`agents.run.sweep`), into ``--out`` (default
-``runs/sweep_<env>_<policy>``) with one ordinary run directory per point, ``sweep.csv`` and
+``--grid NAME=V1,V2,...`` (repeatable) or several ``--env`` setups that share a model (env2 and
+env3 differ only in the goal region) train a packed sweep instead: every setup × point of the
+grid × every seed in one compiled program (:mod:`agents.run.sweep`), into ``--out`` (default
+``runs/sweep_<envs>_<policy>``) with one ordinary run directory per point, ``sweep.csv`` and
 ``sweep_curves.png``.
 
 A repeated command (``--out``, ``--resume``, ``--no-progress``, ``--checkpoint-every`` and
@@ -83,8 +85,9 @@ from mjxrmp.divergence import EXIT_DIVERGED, DivergenceError  # noqa: E402
 def _parser() -> argparse.ArgumentParser:
     """The command line's arguments."""
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--env", default="three_link/env3",
-                   help=f"environment; one of {sorted(envs.ENVIRONMENTS)}")
+    p.add_argument("--env", nargs="+", default=["three_link/env3"],
+                   help=f"environment; one of {sorted(envs.ENVIRONMENTS)}; several setups that "
+                        "share a model (three_link/env2 three_link/env3) train as a sweep")
     p.add_argument("--policy", default="rmp_residual", help=f"policy kind; one of {KINDS}")
     p.add_argument("--preset", default="cpu", help=f"PPO settings; one of {sorted(PRESETS)}")
     p.add_argument("--seeds", type=int, nargs="+", default=[0],
@@ -124,8 +127,9 @@ def main(argv: list[str] | None = None) -> int:
     p = _parser()
     args = p.parse_args(argv)
 
-    if args.env not in envs.ENVIRONMENTS:
-        p.error(f"unknown --env {args.env!r}; valid names are {sorted(envs.ENVIRONMENTS)}")
+    for env in args.env:
+        if env not in envs.ENVIRONMENTS:
+            p.error(f"unknown --env {env!r}; valid names are {sorted(envs.ENVIRONMENTS)}")
     if args.policy not in KINDS:
         p.error(f"unknown --policy {args.policy!r}; valid kinds are {list(KINDS)}")
     if args.preset not in PRESETS:
@@ -138,18 +142,19 @@ def main(argv: list[str] | None = None) -> int:
         overrides = parse_overrides(args.set)
         if args.iterations is not None:
             overrides["total_iterations"] = args.iterations
-        spec = RunSpec(env=args.env, policy=args.policy, seeds=tuple(args.seeds),
+        spec = RunSpec(env=args.env[0], policy=args.policy, seeds=tuple(args.seeds),
                        ppo=preset(args.preset, **overrides), log_every=args.log_every,
                        checkpoint_every=args.checkpoint_every,
                        keep_checkpoints=args.keep_checkpoints or None)
-        sweep = SweepSpec(spec, parse_grid(args.grid)) if args.grid else None
+        setups = tuple(args.env) if len(args.env) > 1 else ()
+        sweep = SweepSpec(spec, parse_grid(args.grid), setups) if args.grid or setups else None
     except (TypeError, ValueError) as e:
         p.error(str(e))
     if sweep is not None and (devices or 1) > 1:
         p.error("--grid runs on one device and one process; leave out --devices")
-    stem = f"{args.env.replace('/', '-')}_{args.policy}"
+    stem = f"{'+'.join(e.replace('/', '-') for e in args.env)}_{args.policy}"
     out = args.out or os.path.join("runs", f"sweep_{stem}" if sweep else stem)
-    print(f"training {spec.policy} on {spec.env}, seeds {list(spec.seeds)}, preset "
+    print(f"training {spec.policy} on {', '.join(args.env)}, seeds {list(spec.seeds)}, preset "
           f"{args.preset}: {spec.ppo.total_iterations} iterations × {spec.ppo.batch_size} "
           f"steps → {out}", file=sys.stderr)
     if sweep is not None:

@@ -6,7 +6,9 @@ study record. Two stages live here, each resumable:
 
 * ``train`` (:func:`train_all`) — for every (environment, policy) pair, a run directory
   ``<runs>/<env>_<policy>`` trained by :func:`agents.run.training.run_training` (all seeds in one
-  vmapped program); a finished run is skipped, an unfinished one resumed. Per-run speed (compile
+  vmapped program) or, for setups that share a model (env2 and env3), by one packed sweep per
+  policy (:func:`agents.run.sweep.run_sweep`: both setups × all seeds in one program); a
+  finished run is skipped, an unfinished one resumed. Per-run speed (compile
   time, steps/s, the per-iteration split rollout / policy forward / update) goes to
   ``<runs>/<env>_<policy>/speed.json``.
 * ``plot`` (:func:`plot_all`) — reads every run's ``metrics.csv`` and writes ``fig6_2.png``,
@@ -35,7 +37,9 @@ from agents.run.curves import episode_window
 from agents.run.logs import nanmean, read_csv
 from agents.run.program import build, profile_iteration
 from agents.run.spec import RunSpec, preset
+from agents.run.sweep import SweepSpec, run_sweep
 from agents.run.training import run_training
+from envs import make as make_env
 from mjxrmp.results.summary import package_versions, write_text
 
 THREE_LINK = ("three_link/env1", "three_link/env2", "three_link/env3")
@@ -58,67 +62,109 @@ def _segment(start: int | None, wall: float, **fields: Any) -> dict[str, Any]:
             "versions": package_versions(), **fields}
 
 
-def _train_one(spec: RunSpec, out: str, resume: bool, progress: bool,
-               profile: bool = True) -> dict[str, Any]:
-    """Train (or resume) one run; its speed record (also written to ``out/speed.json``). Every
-    launch that trains the run, an interrupted one included, adds a segment to the record's
-    ``segments``; ``wall_s`` and ``compile_s`` sum them, ``steps_per_s`` is the last segment's.
+def packed_groups(names: Sequence[str]) -> list[tuple[str, ...]]:
+    """``names`` grouped by the model they share (:meth:`envs.reaching.ReachEnv.shares_model`:
+    three_link env2 and env3 differ only in the goal region), in order of first appearance;
+    a group trains as one packed program (:mod:`agents.run.sweep`)."""
+    groups: list[tuple[Any, list[str]]] = []
+    for name in names:
+        env = make_env(name).unwrapped
+        for first, group in groups:
+            if hasattr(first, "shares_model") and first.shares_model(env):
+                group.append(name)
+                break
+        else:
+            groups.append((env, [name]))
+    return [tuple(group) for _, group in groups]
+
+
+def _train_group(specs: list[RunSpec], outs: list[str], sweep_dir: str, resume: bool,
+                 progress: bool, profile: bool = True) -> list[dict[str, Any]]:
+    """Train (or resume) one run, or several setups packed in one program (a sweep over
+    ``envs`` into ``sweep_dir`` with the run directories ``outs``); each run's speed record
+    (also written to ``out/speed.json``). Every launch that trains, an interrupted one
+    included, adds a segment to the record's ``segments``; ``wall_s`` and ``compile_s`` sum
+    them (a packed run counts its share, ``program_wall_s / len(packed_with)``, so the records
+    of a grid add up to its GPU time), ``steps_per_s`` is the program's in the last segment.
     ``profile``: also time one iteration's phases (``iteration_split_s``; compiles them anew)."""
-    path = os.path.join(out, "speed.json")
-    segments: list[dict[str, Any]] = []
-    if resume and os.path.exists(path):
-        with open(path) as f:
-            segments = json.load(f).get("segments", [])
-    ckpts = os.path.join(out, "checkpoints")
+    n = len(specs)
+    paths = [os.path.join(out, "speed.json") for out in outs]
+    segments: list[list[dict[str, Any]]] = [[] for _ in outs]
+    for seg, path in zip(segments, paths, strict=True):
+        if resume and os.path.exists(path):
+            with open(path) as f:
+                seg.extend(json.load(f).get("segments", []))
+    ckpts = os.path.join(outs[0], "checkpoints")
     start = checkpoint.latest_step(ckpts) if resume else None
+    packed = {"packed_with": [s.env for s in specs]} if n > 1 else {}
     t0 = time.perf_counter()
     try:
-        result = run_training(spec, out, resume=resume, progress=progress)
+        result = run_training(specs[0], outs[0], resume=resume, progress=progress) if n == 1 \
+            else run_sweep(SweepSpec(specs[0], envs=tuple(s.env for s in specs)), sweep_dir,
+                           resume=resume, progress=progress, point_dirs=outs)
     except KeyboardInterrupt:
-        segments.append(_segment(start, time.perf_counter() - t0, interrupted=True,
-                                 to_iteration=int(checkpoint.latest_step(ckpts) or 0)))
-        write_text(path, json.dumps({"env": spec.env, "policy": spec.policy,
-                                     "segments": segments}, indent=1))
+        wall = time.perf_counter() - t0
+        for spec, seg, path in zip(specs, segments, paths, strict=True):
+            seg.append(_segment(start, wall / n, interrupted=True, program_wall_s=wall,
+                                to_iteration=int(checkpoint.latest_step(ckpts) or 0), **packed))
+            write_text(path, json.dumps({"env": spec.env, "policy": spec.policy,
+                                         "segments": seg}, indent=1))
         raise
+    wall = time.perf_counter() - t0
     done = int(result.history["mean_reward"].shape[1])
-    segments.append(_segment(start, time.perf_counter() - t0, to_iteration=done,
-                             compile_s=result.compile_seconds, train_s=result.train_seconds))
-    last = segments[-1]
-    steps = (done - last["from_iteration"]) * spec.ppo.batch_size * len(spec.seeds)
-    speed = {
-        "env": spec.env, "policy": spec.policy, "seeds": list(spec.seeds), "iterations": done,
-        "env_steps": result.env_steps, "wall_s": sum(s["wall_s"] for s in segments),
-        "compile_s": sum(s.get("compile_s", 0.0) for s in segments),
-        "steps_per_s": steps / max(result.train_seconds, 1e-9),
-        "iteration_split_s": profile_iteration(build(spec), result.state) if profile else None,
-        "device": last["device"], "date": last["date"], "segments": segments,
-    }
-    write_text(path, json.dumps(speed, indent=1))
-    return speed
+    split = profile_iteration(build(specs[0]), result.state) if profile else None
+    records = []
+    for spec, seg, path in zip(specs, segments, paths, strict=True):
+        seg.append(_segment(start, wall / n, to_iteration=done, program_wall_s=wall,
+                            compile_s=result.compile_seconds / n,
+                            train_s=result.train_seconds / n, **packed))
+        steps = (done - seg[-1]["from_iteration"]) * spec.ppo.batch_size * len(spec.seeds) * n
+        records.append({
+            "env": spec.env, "policy": spec.policy, "seeds": list(spec.seeds),
+            "iterations": done, "env_steps": result.env_steps // n,
+            "wall_s": sum(s["wall_s"] for s in seg),
+            "compile_s": sum(s.get("compile_s", 0.0) for s in seg),
+            "steps_per_s": steps / max(result.train_seconds, 1e-9), "iteration_split_s": split,
+            "device": seg[-1]["device"], "date": seg[-1]["date"], "segments": seg, **packed})
+        write_text(path, json.dumps(records[-1], indent=1))
+    return records
 
 
 def train_all(runs: str, envs: Sequence[str] = ENVS, policies: Sequence[str] = POLICIES,
               seeds: Sequence[int] = (0, 1, 2, 3), preset_name: str = "thesis",
               iterations: int | None = None, log_every: int = 25, checkpoint_every: int = 100,
-              progress: bool = True, profile: bool = True) -> None:
+              progress: bool = True, profile: bool = True, pack: bool = True,
+              **overrides: Any) -> None:
     """The ``train`` stage (see the module docstring); ``profile=False`` skips the per-phase
-    timing of one iteration in ``speed.json``."""
-    overrides = {} if iterations is None else {"total_iterations": iterations}
-    for env in envs:
+    timing of one iteration in ``speed.json``; ``pack`` trains the setups that share a model
+    (:func:`packed_groups`) in one program per policy (a sweep written to
+    ``<runs>/sweep_<envs>_<policy>``, the runs in their usual directories) when none of them
+    or all of them stopped at the same iteration; ``overrides`` go to the preset."""
+    if iterations is not None:
+        overrides["total_iterations"] = iterations
+    groups = packed_groups(envs) if pack else [(env,) for env in envs]
+    for group in groups:
         for policy in policies:
-            spec = RunSpec(env=env, policy=policy, seeds=tuple(seeds),
-                           ppo=preset(preset_name, **overrides), log_every=log_every,
-                           checkpoint_every=checkpoint_every)
-            out = run_dir(runs, env, policy)
-            step = checkpoint.latest_step(os.path.join(out, "checkpoints"))
-            if step is not None and step >= spec.ppo.total_iterations:
-                print(f"{out}: finished ({step} iterations), skipped", file=sys.stderr)
-                continue
-            print(f"== {policy} on {env}: {len(spec.seeds)} seeds × "
-                  f"{spec.ppo.total_iterations} iterations × {spec.ppo.batch_size} steps",
-                  file=sys.stderr)
-            speed = _train_one(spec, out, step is not None, progress, profile)
-            print(json.dumps(speed), file=sys.stderr)
+            specs = [RunSpec(env=env, policy=policy, seeds=tuple(seeds),
+                             ppo=preset(preset_name, **overrides), log_every=log_every,
+                             checkpoint_every=checkpoint_every) for env in group]
+            outs = [run_dir(runs, env, policy) for env in group]
+            steps = [checkpoint.latest_step(os.path.join(o, "checkpoints")) for o in outs]
+            total = specs[0].ppo.total_iterations
+            todo = [i for i, step in enumerate(steps) if step is None or step < total]
+            for i in sorted(set(range(len(group))) - set(todo)):
+                print(f"{outs[i]}: finished ({steps[i]} iterations), skipped", file=sys.stderr)
+            together = len({steps[i] for i in todo}) == 1
+            for part in ([todo] if together else [[i] for i in todo]) if todo else []:
+                names = " + ".join(group[i] for i in part)
+                print(f"== {policy} on {names}: {len(seeds)} seeds × {total} iterations × "
+                      f"{specs[0].ppo.batch_size} steps", file=sys.stderr)
+                sweep_dir = os.path.join(runs, "sweep_" + "+".join(
+                    os.path.basename(outs[i]) for i in part))
+                for speed in _train_group([specs[i] for i in part], [outs[i] for i in part],
+                                          sweep_dir, steps[part[0]] is not None, progress,
+                                          profile):
+                    print(json.dumps(speed), file=sys.stderr)
 
 
 def load_runs(runs: str) -> dict[tuple[str, str], dict[str, np.ndarray]]:

@@ -23,11 +23,13 @@ uninterrupted sweep (iteration ``i`` of every row draws from ``fold_in(key, i)``
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import itertools
 import json
 import os
 import warnings
+from collections.abc import Sequence
 from typing import IO, Any
 
 import jax
@@ -305,20 +307,28 @@ def _write_outputs(sweep: SweepSpec, out_dir: str, histories: list[dict[str, np.
 
 
 def run_sweep(sweep: SweepSpec, out_dir: str, resume: bool = False, progress: bool = True,
-              stream: IO[str] | None = None) -> RunResult:
+              stream: IO[str] | None = None, point_dirs: Sequence[str] | None = None
+              ) -> RunResult:
     """Train every point × seed of ``sweep`` in one program into ``out_dir`` (see the module
-    docstring) under the directory's lock. The result's history and state are every row's
-    (point-major, then seed)."""
+    docstring) under the directory's lock; ``point_dirs`` places the points' run directories
+    elsewhere (default ``<out_dir>/<point name>``; each is locked too). The result's history
+    and state are every row's (point-major, then seed)."""
     if not resume:
         os.makedirs(out_dir, exist_ok=True)
     elif not os.path.isdir(out_dir):
         raise FileNotFoundError(f"resume=True but {out_dir} does not exist (no sweep to resume)")
     row_scenes(sweep)  # refuses setups that do not share a model before anything is written
     points = sweep.points()
-    dirs = [os.path.join(out_dir, name) for name, _ in points]
-    with lock_run_directory(out_dir):
+    dirs = list(point_dirs or [os.path.join(out_dir, name) for name, _ in points])
+    if len(dirs) != len(points):
+        raise ValueError(f"point_dirs must name one directory per point ({len(points)}), got "
+                         f"{len(dirs)}")
+    with contextlib.ExitStack() as held:
+        held.enter_context(lock_run_directory(out_dir))
         for d in dirs:
             os.makedirs(d, exist_ok=True)
+            if point_dirs is not None:
+                held.enter_context(lock_run_directory(d))
         ckpt_dirs = [_check_dir(d, resume) for d in dirs]
         program = build(points[0][1])
         compile_before = program.compile_seconds

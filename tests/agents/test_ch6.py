@@ -1,6 +1,6 @@
-"""The chapter-6 study's plot stage (agents/run/ch6.py) on synthetic run directories: summary
-numbers against hand-computed values, the figures and tables it writes, and a clear error when
-there is nothing to plot."""
+"""The chapter-6 study (agents/run/ch6.py): the plot stage on synthetic run directories (summary
+numbers against hand-computed values, the figures and tables it writes, a clear error when
+there is nothing to plot) and the train stage's packing of setups that share a model."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ import os
 import numpy as np
 import pytest
 
-from agents.run.ch6 import plot_all, run_dir, summary_row
+from agents.run.ch6 import ENVS, packed_groups, plot_all, run_dir, summary_row, train_all
+from agents.run.loading import load_run
 from agents.run.logs import write_csv
 
 SEEDS, ITERS = (0, 1), 40
@@ -58,3 +59,30 @@ def test_plot_stage_writes_figures_and_tables(tmp_path):
     assert summary["env3_rmp_residual_over_nn"] == pytest.approx(41.0 / 11.0)
     with pytest.raises(FileNotFoundError, match=r"no runs with metrics\.csv"):
         plot_all(str(tmp_path / "empty"), figures, smooth=100)
+
+
+def test_train_stage_packs_setups_that_share_a_model(tmp_path, capsys):
+    """env2 and env3 train in one program per policy into their usual run directories; their
+    speed records split the program's wall time; a repeated stage skips the finished runs."""
+    assert packed_groups(ENVS) == [("three_link/env1",), ("three_link/env2", "three_link/env3"),
+                                   ("franka",)]
+    runs = str(tmp_path / "runs")
+    settings = dict(envs=("three_link/env2", "three_link/env3"), policies=("nn",), seeds=(0, 3),
+                    preset_name="cpu", iterations=2, log_every=2, checkpoint_every=2,
+                    progress=False, profile=False, num_envs=8, rollout_length=16,
+                    num_minibatches=2, update_epochs=2)
+    train_all(runs, **settings)
+    records = []
+    for env in settings["envs"]:
+        run = load_run(run_dir(runs, env, "nn"))
+        assert run.spec.env == env and run.iteration == 2 and run.state.iteration.shape == (2,)
+        with open(os.path.join(run_dir(runs, env, "nn"), "speed.json")) as f:
+            records.append(json.load(f))
+    assert all(r["packed_with"] == list(settings["envs"]) for r in records)
+    program_wall = records[0]["segments"][-1]["program_wall_s"]
+    assert sum(r["wall_s"] for r in records) == pytest.approx(program_wall)
+    assert os.path.exists(os.path.join(runs, "sweep_three_link-env2_nn+three_link-env3_nn",
+                                       "sweep.json"))
+    capsys.readouterr()
+    train_all(runs, **settings)
+    assert capsys.readouterr().err.count("finished (2 iterations), skipped") == 2

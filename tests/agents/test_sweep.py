@@ -10,6 +10,7 @@ import dataclasses
 import jax
 import numpy as np
 import pytest
+from script_main import load_script
 
 from agents.ppo.hparams import SWEEPABLE, resolve
 from agents.run.loading import load_run
@@ -158,3 +159,7 @@ def test_setups_that_differ_in_their_model_are_refused(tmp_path):
     with pytest.raises(ValueError, match=r"'three_link/env1' does not differ .* only in its scene"):
         run_sweep(mixed, str(tmp_path / "mixed"), progress=False)
     assert not (tmp_path / "mixed" / "sweep.json").exists()
+    # the command line: several --env setups are a sweep, refused the same way (exit 2)
+    code = load_script("train.py").main(["--env", "three_link/env2", "three_link/env1",
+                                         "--out", str(tmp_path / "cli"), "--no-progress"])
+    assert code == 2 and not (tmp_path / "cli" / "sweep.json").exists()
