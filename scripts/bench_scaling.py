@@ -7,6 +7,7 @@ Meant for GPUs (the thesis preset); ``--preset cpu --iterations 1`` is a quick c
 Examples::
 
     python scripts/bench_scaling.py sweeps --runs 4 16 64
+    python scripts/bench_scaling.py setups --runs 8 16
     python scripts/bench_scaling.py data_parallel --devices 1 2 4
 """
 
@@ -50,6 +51,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--iterations", type=int, default=2, help="iterations per timed chunk")
     p.add_argument("--runs", type=int, nargs="+", default=[4, 16, 64],
                    help="sweeps: rows per program (multiples of --seeds)")
+    p.add_argument("--setups", nargs="+", default=["three_link/env2", "three_link/env3"],
+                   help="the setups part: environment setups that share a model, packed")
     p.add_argument("--seeds", type=int, default=4, help="vmapped seeds (per sweep point)")
     p.add_argument("--devices", type=int, nargs="+", default=[1, 2, 4],
                    help="data_parallel: GPU counts")
@@ -72,7 +75,15 @@ def main(argv: list[str] | None = None) -> int:
                 "JAX sees")
     command = " ".join(["python scripts/bench_scaling.py",
                         *(argv if argv is not None else sys.argv[1:])])
-    if args.part == "sweeps":
+    if args.part == "setups":  # one setup's seeds, then each --runs with the setups packed
+        rows = [measure_sweep(args.setups[-1], args.policy, args.seeds, args.iterations,
+                              args.preset, args.seeds)] + [
+            measure_sweep(args.env, args.policy, r, args.iterations, args.preset, args.seeds,
+                          tuple(args.setups)) for r in args.runs]
+        for r in rows:
+            print(f"{r['runs']:4d} runs of {r['setups'] or r['env']}: "
+                  f"{r['iteration_s']:.3f} s/iteration, compile {r['compile_s']:.0f} s")
+    elif args.part == "sweeps":
         rows = [measure_sweep(args.env, args.policy, r, args.iterations, args.preset,
                               args.seeds) for r in args.runs]
         for r in rows:

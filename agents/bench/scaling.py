@@ -1,6 +1,8 @@
 """PPO at scale, the ``scaling`` study: packed sweeps on one GPU (R runs as rows of one
-program, :mod:`agents.run.sweep`) and data parallelism over 1, 2 and 4 GPUs of one host (weak
-scaling: a fixed environment batch per GPU; strong: a fixed total batch).
+program, :mod:`agents.run.sweep`; ``setups``: runs of environment setups that share a model,
+env2 and env3, in one program against one setup's runs) and data parallelism over 1, 2 and 4
+GPUs of one host (weak scaling: a fixed environment batch per GPU; strong: a fixed total
+batch).
 
 Each part is measured on its own machine and kept as ``results/scaling/<part>.json`` (the rows
 and the run record); :func:`write_scaling_study` renders ``summary.json`` and ``table.csv`` from
@@ -22,27 +24,31 @@ from agents.run.sweep import SweepSpec, initial_rows
 from mjxrmp.atomic import atomic_write
 from mjxrmp.results.summary import write_study
 
-PARTS = ("sweeps", "data_parallel")
+PARTS = ("sweeps", "setups", "data_parallel")
 
 
 def measure_sweep(env: str, policy: str, runs: int, iterations: int, preset_name: str,
-                  seeds: int = 4, **overrides: Any) -> dict[str, Any]:
-    """Throughput of a packed sweep of ``runs`` rows: ``runs // seeds`` learning rates
-    (log-spaced from the preset's value up to 3× it) × ``seeds`` seeds, one chunk of
-    ``iterations`` timed after a warm-up chunk; ``overrides`` change the preset."""
-    if runs % seeds:
-        raise ValueError(f"runs={runs} must be a multiple of seeds={seeds}")
-    base = RunSpec(env=env, policy=policy, seeds=tuple(range(seeds)),
-                   ppo=preset(preset_name, **overrides))
+                  seeds: int = 4, setups: tuple[str, ...] = (), **overrides: Any
+                  ) -> dict[str, Any]:
+    """Throughput of a packed sweep of ``runs`` rows: the environment setups ``setups`` (none:
+    ``env`` alone) × ``runs // (seeds · setups)`` learning rates (log-spaced from the preset's
+    value up to 3× it) × ``seeds`` seeds, one chunk of ``iterations`` timed after a warm-up
+    chunk; ``overrides`` change the preset."""
+    per_point = seeds * max(len(setups), 1)
+    if runs % per_point:
+        raise ValueError(f"runs={runs} must be a multiple of seeds × setups = {per_point}")
+    base = RunSpec(env=setups[0] if setups else env, policy=policy,
+                   seeds=tuple(range(seeds)), ppo=preset(preset_name, **overrides))
     lr = base.ppo.learning_rate
-    points = runs // seeds
+    points = runs // per_point
     grid = (("learning_rate", tuple(float(v) for v in np.geomspace(lr, 3 * lr, points))),)
-    sweep = SweepSpec(base, grid)
+    sweep = SweepSpec(base, grid if points > 1 or not setups else (), tuple(setups))
     program = build(sweep.points()[0][1])
     compiled_before = program.compile_seconds  # the program is shared by every ``runs``
     _, dt = time_chunk(program, initial_rows(program, sweep), iterations)
     steps = iterations * base.ppo.batch_size * runs
-    return {"env": env, "policy": policy, "runs": runs, "seeds": seeds, "points": points,
+    return {"env": base.env, "setups": list(setups), "policy": policy, "runs": runs,
+            "seeds": seeds, "points": points,
             "num_envs_per_run": base.ppo.num_envs, "iterations": iterations,
             "env_steps": steps, "seconds": dt, "steps_per_s": steps / dt,
             "iteration_s": dt / iterations,
@@ -89,6 +95,26 @@ def _sweep_rows(rows: list[dict]) -> tuple[list[list[str]], list[tuple[str, list
     return table, head
 
 
+def _setup_rows(rows: list[dict]) -> tuple[list[list[str]], list[tuple[str, list[str]]]]:
+    one = next(r for r in rows if not r["setups"])
+    table = []
+    for r in sorted(rows, key=lambda r: (bool(r["setups"]), r["runs"])):
+        names = "+".join(e.split("/")[-1] for e in r["setups"]) or r["env"].split("/")[-1]
+        what = (f"{r['runs']} ({len(r['setups'])} setups × {r['points']} × {r['seeds']} seeds)"
+                if r["setups"] else f"{r['runs']} ({r['seeds']} seeds)")
+        table.append([f"setups packed ({names})" if r["setups"] else f"one setup ({names})",
+                      "1", what, str(r["runs"] * r["num_envs_per_run"]),
+                      f"{r['steps_per_s']:.3g}", f"{r['iteration_s']:.2f}",
+                      f"{r['steps_per_s'] / one['steps_per_s']:.2f}×"])
+    packed = min((r for r in rows if r["setups"]), key=lambda r: r["runs"])
+    head = [("setups", [f"{packed['runs']} runs of {len(packed['setups'])} setups in one "
+                        f"program vs {one['runs']} of one, s / iteration", "–",
+                        f"{packed['iteration_s']:.2f} vs {one['iteration_s']:.2f} "
+                        f"({packed['iteration_s'] / one['iteration_s']:.2f}× the time for "
+                        f"{packed['runs'] / one['runs']:.0f}× the runs)"])]
+    return table, head
+
+
 def _dp_rows(rows: list[dict]) -> tuple[list[list[str]], list[tuple[str, list[str]]]]:
     one = next(r for r in rows if r["devices"] == 1)
     table, head = [], []
@@ -117,7 +143,8 @@ def write_scaling_study(out_dir: str | Path) -> Path:
     if not parts:
         raise FileNotFoundError(f"no part ({', '.join(PARTS)}) in {out_dir}")
     table, headline = [], []
-    for part, render in (("sweeps", _sweep_rows), ("data_parallel", _dp_rows)):
+    for part, render in (("sweeps", _sweep_rows), ("setups", _setup_rows),
+                         ("data_parallel", _dp_rows)):
         if part in parts:
             rows, head = render(parts[part]["rows"])
             table += rows

@@ -27,10 +27,23 @@ def test_sweep_part_measures_and_renders_the_study(tmp_path):
     assert [r[0] for r in summary["tables"]["scaling"]["rows"]] == ["packed sweep"]
     assert summary["headline"]["rows"][0]["run"] == "sweeps"
     assert (tmp_path / "table.csv").read_text().count("\n") == 2
-    with pytest.raises(ValueError, match="multiple of seeds"):
+    with pytest.raises(ValueError, match="multiple of seeds × setups"):
         measure_sweep("three_link/env3", "nn", 3, 1, "cpu", seeds=2)
     with pytest.raises(FileNotFoundError):
         write_scaling_study(tmp_path / "empty")
+
+
+def test_setups_part_packs_setups_and_renders_the_study(tmp_path):
+    one = measure_sweep("three_link/env3", "nn", 1, 1, "cpu", seeds=1, **TINY)
+    packed = measure_sweep("three_link/env1", "nn", 2, 1, "cpu", seeds=1,
+                           setups=("three_link/env2", "three_link/env3"), **TINY)
+    assert packed["points"] == 1 and packed["env"] == "three_link/env2"
+    assert packed["env_steps"] == 2 * 8 * 16 and packed["steps_per_s"] > 0
+    write_part(tmp_path, "setups", [one, packed], run_record("test setups"))
+    summary = load_summary(write_scaling_study(tmp_path))
+    assert [r[0] for r in summary["tables"]["scaling"]["rows"]] == [
+        "one setup (env3)", "setups packed (env2+env3)"]
+    assert "2 runs of 2 setups in one program vs 1 of one" in str(summary["headline"])
 
 
 @pytest.mark.slow
