@@ -117,12 +117,11 @@ class ReachEnv(Env):
         constraint_stages: bool = False,
         unroll_substeps: bool | None = None,
     ):
-        settings = dict(locals())  # the arguments (first statement: nothing else is local yet)
+        settings = {k: v for k, v in locals().items() if k != "self"}  # the arguments only
         name = type(self).__name__
-        #: Everything but the scene that shapes the environment (:meth:`shares_model`): these
-        #: arguments and a subclass's own (set before it calls this constructor).
-        self.model_settings = {**getattr(self, "model_settings", {}), **{
-            k: v for k, v in settings.items() if k not in ("self", "__class__")}}
+        #: What shapes the environment besides its scene (:meth:`shares_model`): the arguments
+        #: and a subclass's own settings (set before it calls this constructor).
+        self.model_settings = {**getattr(self, "model_settings", {}), **settings}
         self.observation_variant = check_choice(observation, f"{name}.observation", OBSERVATIONS)
         self.num_obstacles = check_int(num_obstacles, f"{name}.num_obstacles")
         self.action_limit = check_float(action_limit, f"{name}.action_limit")
@@ -199,9 +198,8 @@ class ReachEnv(Env):
 
     # ------------------------------------------------------------------ scene sampling
     def default_scene(self) -> dict[str, jax.Array]:
-        """The scene sampler's parameters as data (float32 arrays; the setup's goal region,
-        obstacle region and radii): what :meth:`reset` samples from unless given another
-        scene, and what ``state.info["scene"]`` carries (docs/design.md §2.3)."""
+        """The scene sampler's parameters (goal region, obstacle region and radii) as float32
+        arrays: :meth:`reset`'s default scene (docs/design.md §2.2)."""
         raise NotImplementedError
 
     def shares_model(self, other: Env) -> bool:
@@ -211,8 +209,7 @@ class ReachEnv(Env):
         return type(other) is type(self) and other.model_settings == self.model_settings
 
     def sample_scene(self, key: jax.Array, scene: dict[str, jax.Array] | None = None):
-        """``(q0, qd0, goal, obstacles, ok)`` for one episode of ``scene`` (default
-        :meth:`default_scene`).
+        """``(q0, qd0, goal, obstacles, ok)`` for one episode of ``scene`` (default: its own).
 
         The initial state is drawn once; goal and obstacles are drawn as ``candidates``
         candidate pairs against it (the thesis re-samples goal and obstacles when a clearance
@@ -226,8 +223,7 @@ class ReachEnv(Env):
         return q0, qd0, goal, obstacles, ok
 
     def _candidate(self, key: jax.Array, q0: jax.Array, scene: dict[str, jax.Array]):
-        """``((goal, obstacles), margin)``: one candidate of ``scene`` and its clearance margin
-        (≥ 0: valid)."""
+        """``((goal, obstacles), margin)``: one candidate of ``scene``, its margin ≥ 0 if valid."""
         raise NotImplementedError
 
     def _scene_margin(self, q0: jax.Array, goal: jax.Array, obstacles: Obstacles) -> jax.Array:
@@ -326,9 +322,8 @@ class ReachEnv(Env):
                 "success": (goal_distance < self.success_radius).astype(jnp.float32)}
 
     def reset(self, rng: jax.Array, scene: dict[str, jax.Array] | None = None) -> State:
-        """A new episode: goal, obstacles and initial state from :meth:`sample_scene` of
-        ``scene`` (default :meth:`default_scene`; kept in ``info["scene"]``, from which the
-        auto-reset samples the next episode), servos holding the initial state."""
+        """A new episode of ``scene`` (default :meth:`default_scene`; kept in ``info["scene"]``
+        for the auto-reset) from :meth:`sample_scene`, servos holding the initial state."""
         scene = self.default_scene() if scene is None else scene
         k_scene, k_next = jax.random.split(rng)
         q0, qd0, goal, obstacles, ok = self.sample_scene(k_scene, scene)

@@ -90,13 +90,15 @@ def make_update(nets: PPONetworks, tx: optax.GradientTransformation, config: PPO
             updates = jax.tree.map(lambda u: hp.learning_rate * u, updates)
             return (optax.apply_updates(params, updates), opt_state), metrics
 
-        def update_epoch(carry, key):
-            perm = jax.vmap(lambda k: jax.random.permutation(k, block_len))(
-                jax.random.split(key, blocks))
+        def update_epoch(carry, perm):
             mbs = constrain_mb(jax.tree.map(lambda x: _minibatches(x, perm, n_mb), flat), 1)
             return jax.lax.scan(update_minibatch, carry, mbs)
 
-        return jax.lax.scan(update_epoch, (params, opt_state), keys)
+        # every epoch's shuffle drawn before the epochs: one batched sort instead of one per
+        # epoch (the same permutations as drawing each inside its epoch)
+        perms = jax.vmap(lambda key: jax.vmap(lambda k: jax.random.permutation(k, block_len))(
+            jax.random.split(key, blocks)))(keys)
+        return jax.lax.scan(update_epoch, (params, opt_state), perms)
 
     def update(ts, tr, key):
         stats, hp = ts.obs_stats, resolve(config, ts.hparams)

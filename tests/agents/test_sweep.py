@@ -39,6 +39,18 @@ def _params(state):
     return [np.asarray(x) for x in jax.tree.leaves(state.params)]
 
 
+def _separate_run_matches(spec: RunSpec, out: str, result, rows: slice):
+    """Train ``spec`` alone into ``out``; its parameters and metrics equal the sweep result's
+    ``rows`` to float32 rounding. The separate run's result."""
+    alone = run_training(spec, out, progress=False)
+    for a, b in zip(_params(alone.state), _params(result.state), strict=True):
+        np.testing.assert_allclose(b[rows], a, rtol=2e-4, atol=2e-6)
+    for k in ("mean_reward", "loss", "approx_kl"):
+        np.testing.assert_allclose(result.history[k][rows], alone.history[k],
+                                   rtol=2e-3, atol=1e-6)
+    return alone
+
+
 def test_grid_names_every_sweepable_value():
     assert {name for name, _ in GRID} == set(SWEEPABLE)
     names = [name for name, _ in SweepSpec(BASE, GRID).points()]
@@ -51,13 +63,7 @@ def test_each_point_equals_its_separate_run(sweep_dir, tmp_path):
     _, result = sweep_dir
     points = SweepSpec(BASE, GRID).points()
     for i, (_, spec) in enumerate(points):
-        alone = run_training(spec, str(tmp_path / f"p{i}"), progress=False)
-        rows = slice(2 * i, 2 * i + 2)
-        for a, b in zip(_params(alone.state), _params(result.state), strict=True):
-            np.testing.assert_allclose(b[rows], a, rtol=2e-4, atol=2e-6)
-        for k in ("mean_reward", "loss", "approx_kl"):
-            np.testing.assert_allclose(result.history[k][rows], alone.history[k],
-                                       rtol=2e-3, atol=1e-6)
+        _separate_run_matches(spec, str(tmp_path / f"p{i}"), result, slice(2 * i, 2 * i + 2))
     # the two learning rates really differ: the points' parameters are not the same
     p = _params(result.state)
     assert max(np.abs(x[0] - x[2]).max() for x in p) > 1e-5
@@ -122,13 +128,8 @@ def test_each_setup_equals_its_separate_run(setups_dir, tmp_path):
     points = SETUPS.points()
     assert [name for name, _ in points] == ["env=three_link-env2", "env=three_link-env3"]
     for i, (name, spec) in enumerate(points):
-        alone = run_training(spec, str(tmp_path / f"s{i}"), progress=False)
         rows = slice(2 * i, 2 * i + 2)
-        for a, b in zip(_params(alone.state), _params(result.state), strict=True):
-            np.testing.assert_allclose(b[rows], a, rtol=2e-4, atol=2e-6)
-        for k in ("mean_reward", "loss", "approx_kl"):
-            np.testing.assert_allclose(result.history[k][rows], alone.history[k],
-                                       rtol=2e-3, atol=1e-6)
+        alone = _separate_run_matches(spec, str(tmp_path / f"s{i}"), result, rows)
         np.testing.assert_allclose(np.asarray(result.state.env_state.info["goal"])[rows],
                                    np.asarray(alone.state.env_state.info["goal"]), atol=1e-6)
         assert load_run(f"{out}/{name}").spec == spec
