@@ -154,8 +154,9 @@ def train_all(runs: str, envs: Sequence[str] = ENVS, policies: Sequence[str] = P
             todo = [i for i, step in enumerate(steps) if step is None or step < total]
             for i in sorted(set(range(len(group))) - set(todo)):
                 print(f"{outs[i]}: finished ({steps[i]} iterations), skipped", file=sys.stderr)
-            together = len({steps[i] for i in todo}) == 1
-            for part in ([todo] if together else [[i] for i in todo]) if todo else []:
+            # one program when the unfinished runs stopped at the same iteration (or are new)
+            parts = [todo] if len({steps[i] for i in todo}) == 1 else [[i] for i in todo]
+            for part in parts:
                 names = " + ".join(group[i] for i in part)
                 print(f"== {policy} on {names}: {len(seeds)} seeds × {total} iterations × "
                       f"{specs[0].ppo.batch_size} steps", file=sys.stderr)
