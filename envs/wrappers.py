@@ -113,6 +113,7 @@ class AutoResetWrapper(Wrapper):
         state = self.env.reset(rng)
         if scene is None:
             return state
+        # of ``state`` only brax's bookkeeping (zeros) is used: under jit the rest is dropped
         fresh = self._fresh(rng, scene)
         return fresh.replace(info={**fresh.info,
                                    **{k: state.info[k] for k in EPISODE_KEYS}})

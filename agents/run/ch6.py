@@ -37,9 +37,8 @@ from agents.run.curves import episode_window
 from agents.run.logs import nanmean, read_csv
 from agents.run.program import build, profile_iteration
 from agents.run.spec import RunSpec, preset
-from agents.run.sweep import SweepSpec, run_sweep
+from agents.run.sweep import SweepSpec, model_groups, run_sweep
 from agents.run.training import run_training
-from envs import make as make_env
 from mjxrmp.results.summary import package_versions, write_text
 
 THREE_LINK = ("three_link/env1", "three_link/env2", "three_link/env3")
@@ -63,19 +62,9 @@ def _segment(start: int | None, wall: float, **fields: Any) -> dict[str, Any]:
 
 
 def packed_groups(names: Sequence[str]) -> list[tuple[str, ...]]:
-    """``names`` grouped by the model they share (:meth:`envs.reaching.ReachEnv.shares_model`:
-    three_link env2 and env3 differ only in the goal region), in order of first appearance;
-    a group trains as one packed program (:mod:`agents.run.sweep`)."""
-    groups: list[tuple[Any, list[str]]] = []
-    for name in names:
-        env = make_env(name).unwrapped
-        for first, group in groups:
-            if hasattr(first, "shares_model") and first.shares_model(env):
-                group.append(name)
-                break
-        else:
-            groups.append((env, [name]))
-    return [tuple(group) for _, group in groups]
+    """``names`` grouped by the model they share (:func:`agents.run.sweep.model_groups`), in
+    order of first appearance; a group trains as one packed program."""
+    return [tuple(group) for group in model_groups(names)]
 
 
 def _train_group(specs: list[RunSpec], outs: list[str], sweep_dir: str, resume: bool,

@@ -142,6 +142,24 @@ def _rows(sweep: SweepSpec) -> tuple[dict[str, jax.Array], list[str]]:
     return hp or None, [f"{name} seed {s}" for name, _ in points for s in seeds]
 
 
+def model_groups(names: Sequence[str]) -> list[dict[str, Any]]:
+    """The environments called ``names`` grouped by the model they share
+    (:meth:`envs.reaching.ReachEnv.shares_model`: three_link env2 and env3 differ only in the
+    goal region), in order of first appearance, each group ``{name: environment}``: what one
+    packed program can train."""
+    groups: list[dict[str, Any]] = []
+    for name in names:
+        env = envs.make(name).unwrapped
+        for group in groups:
+            first = next(iter(group.values()))
+            if hasattr(first, "shares_model") and first.shares_model(env):
+                group[name] = env
+                break
+        else:
+            groups.append({name: env})
+    return groups
+
+
 def row_scenes(sweep: SweepSpec) -> dict[str, jax.Array] | None:
     """Every row's scene parameters (point-major, then seed;
     :meth:`envs.reaching.ReachEnv.default_scene` of the point's environment), or None when the
@@ -149,17 +167,15 @@ def row_scenes(sweep: SweepSpec) -> dict[str, jax.Array] | None:
     one's model (only the scene parameters may differ)."""
     if not sweep.envs:
         return None
-    first = envs.make(sweep.envs[0]).unwrapped
-    scenes = {}
-    for name in sweep.envs:
-        env = envs.make(name).unwrapped
-        if not (hasattr(first, "shares_model") and first.shares_model(env)):
-            raise ValueError(
-                f"SweepSpec.envs: {name!r} does not differ from {sweep.envs[0]!r} only in its "
-                f"scene parameters (observation size {env.observation_size} vs "
-                f"{first.observation_size}); environments that differ in their model (robot, "
-                f"obstacle count, settings) must be separate sweeps")
-        scenes[name] = env.default_scene()
+    groups = model_groups(sweep.envs)
+    if len(groups) > 1:
+        (name, env), first = next(iter(groups[1].items())), groups[0][sweep.envs[0]]
+        raise ValueError(
+            f"SweepSpec.envs: {name!r} does not differ from {sweep.envs[0]!r} only in its "
+            f"scene parameters (observation size {env.observation_size} vs "
+            f"{first.observation_size}); environments that differ in their model (robot, "
+            f"obstacle count, settings) must be separate sweeps")
+    scenes = {name: env.default_scene() for name, env in groups[0].items()}
     per_row = [scenes[spec.env] for _, spec in sweep.points() for _ in sweep.base.seeds]
     return jax.tree.map(lambda *xs: jnp.stack(xs), *per_row)
 
@@ -359,4 +375,5 @@ def run_sweep(sweep: SweepSpec, out_dir: str, resume: bool = False, progress: bo
                      program.compile_seconds - compile_before, train_s, steps)
 
 
-__all__ = ["SweepSpec", "final_table", "initial_rows", "parse_grid", "run_sweep"]
+__all__ = ["SweepSpec", "final_table", "initial_rows", "model_groups", "parse_grid",
+           "row_scenes", "run_sweep"]
