@@ -68,8 +68,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-profile", action="store_true",
                    help="skip timing one iteration's phases into speed.json (it compiles them)")
     p.add_argument("--no-pack", action="store_true",
-                   help="train every setup as its own program (default: setups that share a "
-                        "model, env2 and env3, train packed in one program per policy)")
+                   help="train every (setup, policy) as its own program (default: setups that "
+                        "share a model, env2 and env3, × kinds that share a network, nn and "
+                        "nn_residual, train packed in one program)")
     args = p.parse_args(argv)
     try:
         reproduce(args.stage, args.runs, args.figures, args.smooth, args.baseline_episodes,

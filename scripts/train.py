@@ -19,12 +19,14 @@ Examples::
     python scripts/train.py --set learning_rate=1e-4 --set total_iterations=50
     python scripts/train.py --seeds 0 1 --grid learning_rate=1e-4,3e-4 --grid ent_coef=0,0.01
     python scripts/train.py --env three_link/env2 three_link/env3 --seeds 0 1 2 3
+    python scripts/train.py --policy nn nn_residual --seeds 0 1 2 3
 
-``--grid NAME=V1,V2,...`` (repeatable) or several ``--env`` setups that share a model (env2 and
-env3 differ only in the goal region) train a packed sweep instead: every setup × point of the
-grid × every seed in one compiled program (:mod:`agents.run.sweep`), into ``--out`` (default
-``runs/sweep_<envs>_<policy>``) with one ordinary run directory per point, ``sweep.csv`` and
-``sweep_curves.png``.
+``--grid NAME=V1,V2,...`` (repeatable), several ``--env`` setups that share a model (env2 and
+env3 differ only in the goal region) or several ``--policy`` kinds that share a network (nn and
+nn_residual: the hand-designed base added or not) train a packed sweep instead: every setup ×
+kind × point of the grid × every seed in one compiled program (:mod:`agents.run.sweep`), into
+``--out`` (default ``runs/sweep_<envs>_<policies>``) with one ordinary run directory per point,
+``sweep.csv`` and ``sweep_curves.png``.
 
 A repeated command (``--out``, ``--resume``, ``--no-progress``, ``--checkpoint-every`` and
 ``--keep-checkpoints`` aside) starts compiling the programs the last one used while it imports
@@ -73,7 +75,8 @@ from agents.ppo import KINDS, make_mesh  # noqa: E402
 from agents.ppo.hparams import SWEEPABLE  # noqa: E402
 from agents.run.distributed import initialize, mesh_devices  # noqa: E402
 from agents.run.spec import PRESETS, RunSpec, parse_overrides, preset  # noqa: E402
-from agents.run.sweep import SweepSpec, parse_grid, run_sweep  # noqa: E402
+from agents.run.sweep import run_sweep  # noqa: E402
+from agents.run.sweep_spec import SweepSpec, parse_grid  # noqa: E402
 from agents.run.training import (  # noqa: E402
     RunDirectoryInUseError,
     result_summary,
@@ -88,7 +91,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--env", nargs="+", default=["three_link/env3"],
                    help=f"environment; one of {sorted(envs.ENVIRONMENTS)}; several setups that "
                         "share a model (three_link/env2 three_link/env3) train as a sweep")
-    p.add_argument("--policy", default="rmp_residual", help=f"policy kind; one of {KINDS}")
+    p.add_argument("--policy", nargs="+", default=["rmp_residual"],
+                   help=f"policy kind; one of {KINDS}; several that share a network (nn "
+                        "nn_residual) train as a sweep")
     p.add_argument("--preset", default="cpu", help=f"PPO settings; one of {sorted(PRESETS)}")
     p.add_argument("--seeds", type=int, nargs="+", default=[0],
                    help="seeds, trained together in one vmapped program")
@@ -130,8 +135,9 @@ def main(argv: list[str] | None = None) -> int:
     for env in args.env:
         if env not in envs.ENVIRONMENTS:
             p.error(f"unknown --env {env!r}; valid names are {sorted(envs.ENVIRONMENTS)}")
-    if args.policy not in KINDS:
-        p.error(f"unknown --policy {args.policy!r}; valid kinds are {list(KINDS)}")
+    for kind in args.policy:
+        if kind not in KINDS:
+            p.error(f"unknown --policy {kind!r}; valid kinds are {list(KINDS)}")
     if args.preset not in PRESETS:
         p.error(f"unknown --preset {args.preset!r}; valid presets are {sorted(PRESETS)}")
     try:
@@ -142,21 +148,23 @@ def main(argv: list[str] | None = None) -> int:
         overrides = parse_overrides(args.set)
         if args.iterations is not None:
             overrides["total_iterations"] = args.iterations
-        spec = RunSpec(env=args.env[0], policy=args.policy, seeds=tuple(args.seeds),
+        spec = RunSpec(env=args.env[0], policy=args.policy[0], seeds=tuple(args.seeds),
                        ppo=preset(args.preset, **overrides), log_every=args.log_every,
                        checkpoint_every=args.checkpoint_every,
                        keep_checkpoints=args.keep_checkpoints or None)
         setups = tuple(args.env) if len(args.env) > 1 else ()
-        sweep = SweepSpec(spec, parse_grid(args.grid), setups) if args.grid or setups else None
+        kinds = tuple(args.policy) if len(args.policy) > 1 else ()
+        sweep = (SweepSpec(spec, parse_grid(args.grid), setups, kinds)
+                 if args.grid or setups or kinds else None)
     except (TypeError, ValueError) as e:
         p.error(str(e))
     if sweep is not None and (devices or 1) > 1:
         p.error("--grid runs on one device and one process; leave out --devices")
-    stem = f"{'+'.join(e.replace('/', '-') for e in args.env)}_{args.policy}"
+    stem = f"{'+'.join(e.replace('/', '-') for e in args.env)}_{'+'.join(args.policy)}"
     out = args.out or os.path.join("runs", f"sweep_{stem}" if sweep else stem)
-    print(f"training {spec.policy} on {', '.join(args.env)}, seeds {list(spec.seeds)}, preset "
-          f"{args.preset}: {spec.ppo.total_iterations} iterations × {spec.ppo.batch_size} "
-          f"steps → {out}", file=sys.stderr)
+    print(f"training {', '.join(args.policy)} on {', '.join(args.env)}, seeds "
+          f"{list(spec.seeds)}, preset {args.preset}: {spec.ppo.total_iterations} iterations × "
+          f"{spec.ppo.batch_size} steps → {out}", file=sys.stderr)
     if sweep is not None:
         print(f"sweep of {len(sweep.points())} points × {len(spec.seeds)} seeds in one program",
               file=sys.stderr)

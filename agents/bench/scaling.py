@@ -20,7 +20,8 @@ import numpy as np
 from agents.bench.throughput import measure_ppo, time_chunk
 from agents.run.program import build
 from agents.run.spec import RunSpec, preset
-from agents.run.sweep import SweepSpec, initial_rows
+from agents.run.sweep import initial_rows
+from agents.run.sweep_spec import SweepSpec
 from mjxrmp.atomic import atomic_write
 from mjxrmp.results.summary import write_study
 

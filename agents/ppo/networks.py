@@ -126,11 +126,20 @@ class PPONetworks:
             return self.policy.apply(params, obs, self.norm(stats))
         return self.policy.apply(params, obs, self.norm(stats), features)
 
-    def policy_features(self, obs: jax.Array) -> Any:
+    def policy_features(self, obs: jax.Array, base_weight: Any = None) -> Any:
         """The parameter-free part of the policy at ``obs`` (its ``precompute(obs)``), or None
-        for a policy without one; what :meth:`policy_apply` then needs no longer compute."""
+        for a policy without one; what :meth:`policy_apply` then needs no longer compute.
+        ``base_weight`` (a packed sweep's per-run value, :mod:`agents.ppo.hparams`) scales it:
+        only for a policy whose part is an added base acceleration (``weighted_base``)."""
+        if base_weight is not None and not getattr(self.policy, "weighted_base", False):
+            raise ValueError(f"base_weight needs a policy whose precomputed part is an added "
+                             f"base acceleration (NNResidualPolicy), got "
+                             f"{type(self.policy).__name__}")
         precompute = getattr(self.policy, "precompute", None)
-        return None if precompute is None else precompute(obs)
+        if precompute is None:
+            return None
+        features = precompute(obs)
+        return features if base_weight is None else base_weight * features
 
     def value_apply(self, params: Any, obs: jax.Array, stats: RunningStats) -> jax.Array:
         """State value at ``obs`` (normalised first when the networks normalise)."""

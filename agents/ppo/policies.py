@@ -16,7 +16,9 @@ Kinds (:func:`make_policy`):
 * ``"nn"`` — :class:`agents.ppo.networks.GaussianPolicy`: MLP (256, 128) relu (Franka (512, 256)),
   output init scale 0.1, on the observation.
 * ``"nn_residual"`` — :class:`NNResidualPolicy`: the same MLP's output plus the acceleration of
-  the hand-designed ``residual_base`` RMP² preset.
+  the hand-designed ``residual_base`` RMP² preset. ``nn`` and ``nn_residual`` have the same
+  parameters; with the base's weight as per-run data (0 for ``nn``) one program trains both
+  (:func:`packed_kind`, :mod:`agents.ppo.hparams`).
 * ``"rmp_residual"`` — :class:`RMPResidualPolicy`: a residual RMP on the end-effector space
   inside the policy. MLP (128, 64) elu (Franka (256, 128)), output init scale 0.01, over
   ``[x, ẋ, g, {o_i}]`` gives ``A_r = √5·tanh(·)`` (m × m) and ``a_r = tanh(·)`` (m); with the
@@ -182,7 +184,11 @@ class HandDesignedPolicy(nn.Module):
 
 
 class NNResidualPolicy(nn.Module):
-    """Mean = MLP(obs) + hand-designed RMP² acceleration of ``rmp_config``."""
+    """Mean = MLP(obs) + hand-designed RMP² acceleration of ``rmp_config`` (times a packed
+    sweep's ``base_weight``, passed in through ``features``)."""
+
+    #: its precomputed part is the added base: a run's ``base_weight`` may scale it
+    weighted_base = True
 
     spec: ObservationSpec
     rmp_config: rmp_policies.PolicyConfig
@@ -255,6 +261,43 @@ class RMPResidualPolicy(nn.Module):
         return mean, log_std
 
 
+#: The kinds that share one network, by the weight of the hand-designed base added to its
+#: output: ``nn`` is :class:`NNResidualPolicy` with weight 0 (the same parameters as
+#: :class:`agents.ppo.networks.GaussianPolicy`).
+BASE_WEIGHT = {"nn": 0.0, "nn_residual": 1.0}
+
+
+def packed_kind(kinds: Sequence[str]) -> str:
+    """The policy kind one program trains all of ``kinds`` with: the kind itself when there is
+    one, ``nn_residual`` for ``nn`` and ``nn_residual`` (each run's ``base_weight`` from
+    :data:`BASE_WEIGHT`). An error names kinds that differ in network structure."""
+    kinds = tuple(kinds)
+    unknown = sorted(set(kinds) - set(KINDS))
+    if unknown or not kinds:
+        raise ValueError(f"policy kinds must be among {KINDS}, got {kinds!r}")
+    if len(set(kinds)) == 1:
+        return kinds[0]
+    if not set(kinds) <= set(BASE_WEIGHT):
+        raise ValueError(f"policy kinds {sorted(set(kinds))} differ in network structure and "
+                         f"cannot share a program; only {sorted(BASE_WEIGHT)} can (the same "
+                         f"network, the hand-designed base added or not)")
+    return "nn_residual"
+
+
+def policy_groups(kinds: Sequence[str]) -> list[tuple[str, ...]]:
+    """``kinds`` grouped into what one program can train (:func:`packed_kind`), in order of
+    first appearance."""
+    groups: list[tuple[str, ...]] = []
+    for kind in kinds:
+        i = next((i for i, g in enumerate(groups) if kind in BASE_WEIGHT and g[0] in BASE_WEIGHT),
+                 None)
+        if i is None:
+            groups.append((kind,))
+        else:
+            groups[i] = (*groups[i], kind)
+    return groups
+
+
 def make_policy(kind: str, env, **overrides) -> nn.Module:
     """The ``kind`` policy (one of :data:`KINDS`) for reaching environment ``env``.
 
@@ -319,6 +362,7 @@ def make_env_and_policy(env_name: str, kind: str, env_kwargs: dict | None = None
 
 
 __all__ = [
+    "BASE_WEIGHT",
     "KINDS",
     "HandDesignedPolicy",
     "NNResidualPolicy",
@@ -328,5 +372,7 @@ __all__ = [
     "hand_designed_mean",
     "make_env_and_policy",
     "make_policy",
+    "packed_kind",
+    "policy_groups",
     "residual_features",
 ]

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 from brax.envs.base import Env
 
+from agents.ppo.hparams import base_weight
 from agents.ppo.losses import gaussian_log_prob
 from agents.ppo.networks import PPONetworks
 from agents.ppo.state import TrainState, Transition
@@ -57,9 +58,10 @@ def make_rollout(env: Env, nets: PPONetworks, num_steps: int, constrain: Callabl
     axis = {"axis_name": seed_axis} if auto_reset and seed_axis is not None else {}
 
     def act(carry, key, advance):
-        params, stats, state, ep_ret, ep_col = carry
+        params, stats, state, ep_ret, ep_col, weight = carry
         obs = state.obs
-        mean, log_std = nets.policy_apply(params["policy"], obs, stats)
+        features = None if weight is None else nets.policy_features(obs, weight)
+        mean, log_std = nets.policy_apply(params["policy"], obs, stats, features)
         action = mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape, mean.dtype)
         value = nets.value_apply(params["value"], obs, stats)
         state, extra = advance(state, action)
@@ -75,7 +77,7 @@ def make_rollout(env: Env, nets: PPONetworks, num_steps: int, constrain: Callabl
                         success)
         ep_ret = jnp.where(done > 0, 0.0, ep_ret)
         ep_col = jnp.where(done > 0, 0.0, ep_col)
-        return (params, stats, state, ep_ret, ep_col), tr, extra
+        return (params, stats, state, ep_ret, ep_col, weight), tr, extra
 
     def plain(carry, keys):
         def body(c, key):
@@ -94,7 +96,8 @@ def make_rollout(env: Env, nets: PPONetworks, num_steps: int, constrain: Callabl
         return jax.lax.cond(redo, plain, lambda c, k: (carry_out, tr), carry, keys)
 
     def rollout(ts, key):
-        carry = (ts.params, ts.obs_stats, ts.env_state, ts.episode_return, ts.episode_collided)
+        carry = (ts.params, ts.obs_stats, ts.env_state, ts.episode_return, ts.episode_collided,
+                 base_weight(ts.hparams))
         keys = jax.random.split(key, num_steps)
         if pooled:
             blocks = keys.reshape((num_steps // block, block, *keys.shape[1:]))
@@ -102,7 +105,7 @@ def make_rollout(env: Env, nets: PPONetworks, num_steps: int, constrain: Callabl
             tr = jax.tree.map(lambda x: x.reshape((num_steps, *x.shape[2:])), tr)
         else:
             carry, tr = plain(carry, keys)
-        _, _, state, ep_ret, ep_col = carry
+        _, _, state, ep_ret, ep_col, _ = carry
         ts = ts._replace(env_state=state, episode_return=ep_ret, episode_collided=ep_col)
         return ts, constrain(tr, 1)
 

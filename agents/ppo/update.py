@@ -19,7 +19,7 @@ import optax
 from jax.sharding import Mesh
 
 from agents.ppo.config import PPOConfig
-from agents.ppo.hparams import resolve
+from agents.ppo.hparams import base_weight, resolve
 from agents.ppo.losses import gae, ppo_loss
 from agents.ppo.networks import PPONetworks
 from agents.ppo.normalization import update_stats
@@ -107,7 +107,8 @@ def make_update(nets: PPONetworks, tx: optax.GradientTransformation, config: PPO
                        hp.gamma, hp.gae_lambda)
         flat = {"obs": tr.obs, "actions": tr.actions, "log_probs": tr.log_probs,
                 "advantages": adv, "returns": ret}
-        features = nets.policy_features(tr.obs)  # once per state, not once per epoch
+        # once per state, not once per epoch
+        features = nets.policy_features(tr.obs, base_weight(ts.hparams))
         if features is not None:
             flat["policy_features"] = features
         flat = constrain_blocks(jax.tree.map(lambda x: _to_blocks(x, blocks), flat))

@@ -6,10 +6,11 @@ study record. Two stages live here, each resumable:
 
 * ``train`` (:func:`train_all`) — for every (environment, policy) pair, a run directory
   ``<runs>/<env>_<policy>`` trained by :func:`agents.run.training.run_training` (all seeds in one
-  vmapped program) or, for setups that share a model (env2 and env3), by one packed sweep per
-  policy (:func:`agents.run.sweep.run_sweep`: both setups × all seeds in one program); a
-  finished run is skipped, an unfinished one resumed. Per-run speed (compile
-  time, steps/s, the per-iteration split rollout / policy forward / update) goes to
+  vmapped program) or, for setups that share a model (env2 and env3) and policy kinds that
+  share a network (``nn`` and ``nn_residual``), by one packed sweep
+  (:func:`agents.run.sweep.run_sweep`: the setups × the kinds × all seeds in one program;
+  :func:`packed_cells`); a finished run is skipped, an unfinished one resumed. Per-run speed
+  (compile time, steps/s, the per-iteration split rollout / policy forward / update) goes to
   ``<runs>/<env>_<policy>/speed.json``.
 * ``plot`` (:func:`plot_all`) — reads every run's ``metrics.csv`` and writes ``fig6_2.png``,
   ``fig6_3.png``, ``fig6_4.png``, ``ch6_summary.csv`` and ``ch6_summary.json`` (final reward,
@@ -32,12 +33,14 @@ from typing import Any
 import jax
 import numpy as np
 
+from agents.ppo.policies import policy_groups
 from agents.run import checkpoint
 from agents.run.curves import episode_window
 from agents.run.logs import nanmean, read_csv
 from agents.run.program import build, profile_iteration
 from agents.run.spec import RunSpec, preset
-from agents.run.sweep import SweepSpec, model_groups, run_sweep
+from agents.run.sweep import run_sweep
+from agents.run.sweep_spec import SweepSpec, model_groups
 from agents.run.training import run_training
 from mjxrmp.results.summary import package_versions, write_text
 
@@ -62,15 +65,30 @@ def _segment(start: int | None, wall: float, **fields: Any) -> dict[str, Any]:
 
 
 def packed_groups(names: Sequence[str]) -> list[tuple[str, ...]]:
-    """``names`` grouped by the model they share (:func:`agents.run.sweep.model_groups`), in
+    """``names`` grouped by the model they share (:func:`agents.run.sweep_spec.model_groups`), in
     order of first appearance; a group trains as one packed program."""
     return [tuple(group) for group in model_groups(names)]
 
 
+def packed_cells(envs: Sequence[str], policies: Sequence[str]) -> list[list[tuple[str, str]]]:
+    """The ``(env, policy)`` cells grouped into programs: setups that share a model
+    (:func:`packed_groups`) × policy kinds that share a network
+    (:func:`agents.ppo.policies.policy_groups`), each group environment-major (a sweep's point
+    order)."""
+    return [[(env, kind) for env in setups for kind in kinds]
+            for setups in packed_groups(envs) for kinds in policy_groups(policies)]
+
+
+def _distinct(values: Sequence[str]) -> tuple[str, ...]:
+    """``values`` without repeats, in order; empty when there is only one (no sweep axis)."""
+    out = tuple(dict.fromkeys(values))
+    return out if len(out) > 1 else ()
+
+
 def _train_group(specs: list[RunSpec], outs: list[str], sweep_dir: str, resume: bool,
                  progress: bool, profile: bool = True) -> list[dict[str, Any]]:
-    """Train (or resume) one run, or several setups packed in one program (a sweep over
-    ``envs`` into ``sweep_dir`` with the run directories ``outs``); each run's speed record
+    """Train (or resume) one run, or several cells packed in one program (a sweep over their
+    setups × kinds into ``sweep_dir`` with the run directories ``outs``); each run's speed record
     (also written to ``out/speed.json``). Every launch that trains, an interrupted one
     included, adds a segment to the record's ``segments``; ``wall_s`` and ``compile_s`` sum
     them (a packed run counts its share, ``program_wall_s / len(packed_with)``, so the records
@@ -85,12 +103,14 @@ def _train_group(specs: list[RunSpec], outs: list[str], sweep_dir: str, resume: 
                 seg.extend(json.load(f).get("segments", []))
     ckpts = os.path.join(outs[0], "checkpoints")
     start = checkpoint.latest_step(ckpts) if resume else None
-    packed = {"packed_with": [s.env for s in specs]} if n > 1 else {}
+    packed = {"packed_with": [os.path.basename(out) for out in outs]} if n > 1 else {}
+    sweep = SweepSpec(specs[0], envs=_distinct([s.env for s in specs]),
+                      policies=_distinct([s.policy for s in specs])) if n > 1 else None
     t0 = time.perf_counter()
     try:
-        result = run_training(specs[0], outs[0], resume=resume, progress=progress) if n == 1 \
-            else run_sweep(SweepSpec(specs[0], envs=tuple(s.env for s in specs)), sweep_dir,
-                           resume=resume, progress=progress, point_dirs=outs)
+        result = run_training(specs[0], outs[0], resume=resume, progress=progress) \
+            if sweep is None else run_sweep(sweep, sweep_dir, resume=resume, progress=progress,
+                                            point_dirs=outs)
     except KeyboardInterrupt:
         wall = time.perf_counter() - t0
         for spec, seg, path in zip(specs, segments, paths, strict=True):
@@ -101,7 +121,8 @@ def _train_group(specs: list[RunSpec], outs: list[str], sweep_dir: str, resume: 
         raise
     wall = time.perf_counter() - t0
     done = int(result.history["mean_reward"].shape[1])
-    split = profile_iteration(build(specs[0]), result.state) if profile else None
+    program = build(specs[0] if sweep is None else sweep.program_spec())
+    split = profile_iteration(program, result.state) if profile else None
     records = []
     for spec, seg, path in zip(specs, segments, paths, strict=True):
         seg.append(_segment(start, wall / n, to_iteration=done, program_wall_s=wall,
@@ -125,36 +146,38 @@ def train_all(runs: str, envs: Sequence[str] = ENVS, policies: Sequence[str] = P
               progress: bool = True, profile: bool = True, pack: bool = True,
               **overrides: Any) -> None:
     """The ``train`` stage (see the module docstring); ``profile=False`` skips the per-phase
-    timing of one iteration in ``speed.json``; ``pack`` trains the setups that share a model
-    (:func:`packed_groups`) in one program per policy (a sweep written to
-    ``<runs>/sweep_<envs>_<policy>``, the runs in their usual directories) when none of them
-    or all of them stopped at the same iteration; ``overrides`` go to the preset."""
+    timing of one iteration in ``speed.json``; ``pack`` trains each group of
+    :func:`packed_cells` in one program (a sweep written to ``<runs>/sweep_<runs>``, the runs in
+    their usual directories) when none of its runs or all of them stopped at the same
+    iteration; ``overrides`` go to the preset."""
     if iterations is not None:
         overrides["total_iterations"] = iterations
-    groups = packed_groups(envs) if pack else [(env,) for env in envs]
-    for group in groups:
-        for policy in policies:
-            specs = [RunSpec(env=env, policy=policy, seeds=tuple(seeds),
-                             ppo=preset(preset_name, **overrides), log_every=log_every,
-                             checkpoint_every=checkpoint_every) for env in group]
-            outs = [run_dir(runs, env, policy) for env in group]
-            steps = [checkpoint.latest_step(os.path.join(o, "checkpoints")) for o in outs]
-            total = specs[0].ppo.total_iterations
-            todo = [i for i, step in enumerate(steps) if step is None or step < total]
-            for i in sorted(set(range(len(group))) - set(todo)):
-                print(f"{outs[i]}: finished ({steps[i]} iterations), skipped", file=sys.stderr)
-            # one program when the unfinished runs stopped at the same iteration (or are new)
-            parts = [todo] if len({steps[i] for i in todo}) == 1 else [[i] for i in todo]
-            for part in parts:
-                names = " + ".join(group[i] for i in part)
-                print(f"== {policy} on {names}: {len(seeds)} seeds × {total} iterations × "
-                      f"{specs[0].ppo.batch_size} steps", file=sys.stderr)
-                sweep_dir = os.path.join(runs, "sweep_" + "+".join(
-                    os.path.basename(outs[i]) for i in part))
-                for speed in _train_group([specs[i] for i in part], [outs[i] for i in part],
-                                          sweep_dir, steps[part[0]] is not None, progress,
-                                          profile):
-                    print(json.dumps(speed), file=sys.stderr)
+    units = packed_cells(envs, policies) if pack else [[(e, p)] for e in envs for p in policies]
+    for cells in units:
+        specs = [RunSpec(env=env, policy=kind, seeds=tuple(seeds),
+                         ppo=preset(preset_name, **overrides), log_every=log_every,
+                         checkpoint_every=checkpoint_every) for env, kind in cells]
+        outs = [run_dir(runs, env, kind) for env, kind in cells]
+        steps = [checkpoint.latest_step(os.path.join(o, "checkpoints")) for o in outs]
+        total = specs[0].ppo.total_iterations
+        todo = [i for i, step in enumerate(steps) if step is None or step < total]
+        for i in sorted(set(range(len(cells))) - set(todo)):
+            print(f"{outs[i]}: finished ({steps[i]} iterations), skipped", file=sys.stderr)
+        # one program when the unfinished runs stopped at the same iteration (or are new) and
+        # are every setup × kind of theirs
+        left = [cells[i] for i in todo]
+        grid = len(left) == len({e for e, _ in left}) * len({k for _, k in left})
+        parts = [todo] if grid and len({steps[i] for i in todo}) == 1 else [[i] for i in todo]
+        for part in parts:
+            kinds, setups = (" + ".join(dict.fromkeys(cells[i][c] for i in part)) for c in (1, 0))
+            print(f"== {kinds} on {setups}: {len(seeds)} seeds × {total} iterations × "
+                  f"{specs[0].ppo.batch_size} steps", file=sys.stderr)
+            sweep_dir = os.path.join(runs, "sweep_" + "+".join(
+                os.path.basename(outs[i]) for i in part))
+            for speed in _train_group([specs[i] for i in part], [outs[i] for i in part],
+                                      sweep_dir, steps[part[0]] is not None, progress,
+                                      profile):
+                print(json.dumps(speed), file=sys.stderr)
 
 
 def load_runs(runs: str) -> dict[tuple[str, str], dict[str, np.ndarray]]:
@@ -292,5 +315,5 @@ def plot_all(runs_dir: str, figures: str, smooth: int,
     return summary
 
 
-__all__ = ["COLORS", "ENVS", "LABELS", "POLICIES", "THREE_LINK", "load_runs", "plot_all",
-           "plot_figures", "run_dir", "summary_row", "train_all"]
+__all__ = ["COLORS", "ENVS", "LABELS", "POLICIES", "THREE_LINK", "load_runs", "packed_cells",
+           "packed_groups", "plot_all", "plot_figures", "run_dir", "summary_row", "train_all"]

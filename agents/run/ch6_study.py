@@ -68,10 +68,14 @@ def _speed(runs: str, env: str, policy: str) -> dict[str, Any]:
 
 
 def _record(runs: str, env: str, policy: str) -> dict[str, Any]:
-    """A trained run's ``runs`` entry from its ``speed.json`` (device, date, versions)."""
+    """A trained run's ``runs`` entry from its ``speed.json`` (device, date, versions); the
+    command of a packed run trains every run it was packed with (``packed_with``)."""
     speed = _speed(runs, env, policy)
     last = (speed.get("segments") or [{}])[-1]
-    return {"command": TRAIN_COMMAND.format(env=env, policy=policy),
+    cell = {os.path.basename(run_dir("", e, p)): (e, p) for e in ENVS for p in LABELS}
+    cells = [cell[name] for name in speed.get("packed_with", [])] or [(env, policy)]
+    setups, kinds = (" ".join(dict.fromkeys(c[i] for c in cells)) for i in (0, 1))
+    return {"command": TRAIN_COMMAND.format(env=setups, policy=kinds),
             "device": speed.get("device", "unknown"), "versions": last.get("versions", {}),
             "date": speed.get("date", "unknown")}
 
@@ -178,9 +182,9 @@ def ablation_table(figures: str, by: dict) -> tuple[list[str], list[list[Any]]] 
               f"{_fmt_int(r['episodes'])}"] for label, r in rows])
 
 
-def deviations(by: dict, wall_s: float) -> list[str]:
+def deviations(by: dict, wall_s: float, devices: Sequence[str] = ()) -> list[str]:
     """Where the runs differ from the thesis's statements (each sentence only when the data
-    shows it)."""
+    shows it); ``devices`` ran the grid."""
     e1, e3, fr = "three_link/env1", "three_link/env3", "franka"
     out = []
     env1 = [by[(e1, p)]["final_reward"] for p in POLICIES if (e1, p) in by]
@@ -204,7 +208,8 @@ def deviations(by: dict, wall_s: float) -> list[str]:
                    f"({rf['final_reward']:.1f} vs {nf['final_reward']:.1f}); in the thesis "
                    "NN-RESIDUAL is slightly higher.")
     if wall_s > 30 * 60:
-        out.append(f"The grid takes {wall_s / 60:.1f} min of H100 time, above the 30-minute "
+        on = f" ({', '.join(devices)})" if devices else ""
+        out.append(f"The grid takes {wall_s / 60:.1f} min of GPU time{on}, above the 30-minute "
                    "target.")
     return out
 
@@ -216,6 +221,7 @@ def write_ch6_study(figures: str, runs: str, summary: dict[str, Any]) -> Path:
     baselines = load_baselines(runs)
     wall = grid_wall_s(runs)
     records = {f"{e.replace('/', '-')}_{p}": _record(runs, e, p) for e, p in sorted(by)}
+    devices = sorted({r["device"] for r in records.values()} - {"unknown"})
     records.update({f"{e.replace('/', '-')}_hand_designed": b["record"]
                     for e, b in baselines.items()})
     columns, rows = main_table(summary["rows"], baselines, runs)
@@ -227,7 +233,7 @@ def write_ch6_study(figures: str, runs: str, summary: dict[str, Any]) -> Path:
     study = {**HEAD, "runs": records,
              "headline": {"columns": ["quantity", "thesis or peer figure", "ours"],
                           "rows": [{"run": run, "cells": cells} for run, cells in heads]},
-             "tables": tables, "deviations": deviations(by, wall),
+             "tables": tables, "deviations": deviations(by, wall, devices),
              "figures": [f for f in FIGURES if os.path.exists(os.path.join(figures, f))]}
     csv = "\n".join(",".join(f'"{c}"' if "," in str(c) else str(c) for c in row)
                     for row in [columns, *rows]) + "\n"
@@ -251,5 +257,5 @@ def reproduce(stage: str, runs: str, figures: str, smooth: int = 100,
     return None
 
 
-__all__ = ["ABLATION", "BASELINES", "evaluate_baselines", "grid_wall_s", "headline",
+__all__ = ["ABLATION", "BASELINES", "deviations", "evaluate_baselines", "grid_wall_s", "headline",
            "load_baselines", "main_table", "reproduce", "write_ch6_study"]

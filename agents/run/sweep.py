@@ -1,16 +1,19 @@
 """Packed sweeps: one compiled program trains every run of a grid of environment setups ×
-scalar PPO hyper-parameters × seeds (docs/design.md §2.3).
+policy kinds × scalar PPO hyper-parameters × seeds (docs/design.md §2.3).
 
-A :class:`SweepSpec` is a base :class:`agents.run.spec.RunSpec`, a list of environment setups
-that share a model (e.g. ``three_link/env2`` and ``three_link/env3``, which differ only in the
-goal region) and a grid over names of :data:`agents.ppo.hparams.SWEEPABLE`; its *points* are
-the setups × the grid's cartesian product, each an ordinary ``RunSpec`` (the base with the
-point's environment and values) trained for the base's seeds. All ``points × seeds`` runs share
-the program of the first point (:func:`agents.run.program.build`): the runs are rows of its
-``vmap``; each row carries its own values in ``TrainState.hparams`` (:mod:`agents.ppo.hparams`)
-and its environments their own scene parameters in ``info["scene"]``
-(:meth:`envs.reaching.ReachEnv.reset`), so a point computes what its separate run computes up
-to float32 rounding (its values are data instead of constants).
+A :class:`agents.run.sweep_spec.SweepSpec` is a base :class:`agents.run.spec.RunSpec`, a list of
+environment setups that share a model (e.g. ``three_link/env2`` and ``three_link/env3``, which
+differ only in the goal region), a list of policy kinds that share a network (``nn`` and
+``nn_residual``: the hand-designed base added with weight 0 or 1,
+:func:`agents.ppo.policies.packed_kind`) and a grid over names of
+:data:`agents.ppo.hparams.SWEEPABLE`; its *points* are the setups × the kinds × the grid's
+cartesian product, each an ordinary ``RunSpec`` (the base with the point's environment, kind and
+values) trained for the base's seeds. All ``points × seeds`` runs share one program
+(:meth:`~agents.run.sweep_spec.SweepSpec.program_spec`, :func:`agents.run.program.build`): the
+runs are rows of its ``vmap``; each row carries its own values in ``TrainState.hparams``
+(:mod:`agents.ppo.hparams`, the base's weight included) and its environments their own scene
+parameters in ``info["scene"]`` (:meth:`envs.reaching.ReachEnv.reset`), so a point computes what
+its separate run computes up to float32 rounding (its values are data instead of constants).
 
 :func:`run_sweep` writes ``<out>/sweep.json`` (the sweep), ``<out>/sweep.csv`` (one row per point:
 its values and final metrics, mean ± std over seeds), ``<out>/sweep_curves.png`` and, per point,
@@ -24,8 +27,6 @@ uninterrupted sweep (iteration ``i`` of every row draws from ``fold_in(key, i)``
 from __future__ import annotations
 
 import contextlib
-import dataclasses
-import itertools
 import json
 import os
 import warnings
@@ -36,14 +37,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import envs
 from agents.ppo import TrainState
-from agents.ppo.hparams import SWEEPABLE
 from agents.run import checkpoint
 from agents.run.curves import episode_window
 from agents.run.logs import ProgressBar, summary_line
 from agents.run.program import Program, build, seed_keys
-from agents.run.spec import RunSpec
+from agents.run.sweep_spec import SweepSpec, row_scenes, row_values
 from agents.run.training import (
     RunResult,
     _check_dir,
@@ -56,128 +55,6 @@ from agents.run.training import (
     lock_run_directory,
 )
 from mjxrmp.atomic import atomic_write
-from mjxrmp.config import check_float
-
-
-@dataclasses.dataclass(frozen=True)
-class SweepSpec:
-    """A grid ``((name, (value, ...)), ...)`` of :data:`SWEEPABLE` hyper-parameters and a list
-    of environment setups ``envs`` (names for :func:`envs.make` that differ only in their scene
-    parameters, e.g. ``three_link/env2`` and ``three_link/env3``; empty: the base's
-    environment) over the ``base`` run (its policy, seeds, length and logging cadence are every
-    point's)."""
-
-    base: RunSpec
-    grid: tuple[tuple[str, tuple[float, ...]], ...] = ()
-    envs: tuple[str, ...] = ()
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.base, RunSpec):
-            raise TypeError(f"SweepSpec.base must be a RunSpec, got {type(self.base).__name__}")
-        grid = tuple((name, tuple(values)) for name, values in dict(self.grid).items())
-        setups = tuple(self.envs)
-        if len(set(setups)) != len(setups) or len(setups) == 1 or not all(
-                isinstance(e, str) for e in setups):
-            raise ValueError(f"SweepSpec.envs must list two or more distinct environment names "
-                             f"(or none), got {self.envs!r}")
-        object.__setattr__(self, "envs", setups)
-        if (not grid and not setups) or len(grid) != len(self.grid):
-            raise ValueError(f"SweepSpec.grid must name each hyper-parameter once, and a sweep "
-                             f"needs a grid or two or more envs; got grid={self.grid!r}")
-        for name, values in grid:
-            if name not in SWEEPABLE:
-                raise ValueError(f"SweepSpec.grid: {name!r} cannot be swept; sweepable names "
-                                 f"are {list(SWEEPABLE)}")
-            if not values or len(set(values)) != len(values):
-                raise ValueError(f"SweepSpec.grid[{name!r}] must list distinct values, got "
-                                 f"{values!r}")
-            for v in values:
-                check_float(v, f"SweepSpec.grid[{name!r}] value", allow_zero=True)
-        object.__setattr__(self, "grid", grid)
-        self.points()  # every point's PPOConfig validates its values
-
-    def points(self) -> list[tuple[str, RunSpec]]:
-        """``(name, spec)`` per point: every env of :attr:`envs` (outermost), then the grid in
-        row-major order of :attr:`grid`."""
-        names = [name for name, _ in self.grid]
-        out = []
-        for env in self.envs or (self.base.env,):
-            for values in itertools.product(*(v for _, v in self.grid)):
-                point = dict(zip(names, values, strict=True))
-                spec = dataclasses.replace(self.base, env=env,
-                                           ppo=dataclasses.replace(self.base.ppo, **point))
-                label = [f"env={env.replace('/', '-')}"] if self.envs else []
-                out.append((",".join(label + [f"{k}={v:g}" for k, v in point.items()]), spec))
-        return out
-
-    def to_json(self) -> dict[str, Any]:
-        """The sweep as JSON data (``sweep.json``)."""
-        return {"base": self.base.to_json(), "grid": {k: list(v) for k, v in self.grid},
-                "envs": list(self.envs), "points": [name for name, _ in self.points()]}
-
-
-def parse_grid(items: list[str]) -> tuple[tuple[str, tuple[float, ...]], ...]:
-    """``["learning_rate=1e-4,3e-4", "ent_coef=0,0.01"]`` → the grid of a :class:`SweepSpec`;
-    an error names the item and what was expected."""
-    grid = []
-    for item in items:
-        name, sep, values = item.partition("=")
-        try:
-            parsed = tuple(float(v) for v in values.split(","))
-        except ValueError:
-            parsed = ()
-        if not sep or not parsed:
-            raise ValueError(f"--grid {item!r}: expected NAME=VALUE,VALUE,... with NAME one of "
-                             f"{list(SWEEPABLE)} and numeric values")
-        grid.append((name.strip(), parsed))
-    return tuple(grid)
-
-
-def _rows(sweep: SweepSpec) -> tuple[dict[str, jax.Array], list[str]]:
-    """``TrainState.hparams`` of every row (point-major, then seed; None without a grid) and
-    the rows' names."""
-    points, seeds = sweep.points(), sweep.base.seeds
-    hp = {k: jnp.asarray([getattr(spec.ppo, k) for _, spec in points for _ in seeds],
-                         jnp.float32) for k, _ in sweep.grid}
-    return hp or None, [f"{name} seed {s}" for name, _ in points for s in seeds]
-
-
-def model_groups(names: Sequence[str]) -> list[dict[str, Any]]:
-    """The environments called ``names`` grouped by the model they share
-    (:meth:`envs.reaching.ReachEnv.shares_model`: three_link env2 and env3 differ only in the
-    goal region), in order of first appearance, each group ``{name: environment}``: what one
-    packed program can train."""
-    groups: list[dict[str, Any]] = []
-    for name in names:
-        env = envs.make(name).unwrapped
-        for group in groups:
-            first = next(iter(group.values()))
-            if hasattr(first, "shares_model") and first.shares_model(env):
-                group[name] = env
-                break
-        else:
-            groups.append({name: env})
-    return groups
-
-
-def row_scenes(sweep: SweepSpec) -> dict[str, jax.Array] | None:
-    """Every row's scene parameters (point-major, then seed;
-    :meth:`envs.reaching.ReachEnv.default_scene` of the point's environment), or None when the
-    sweep has one environment. An error names an environment that does not share the first
-    one's model (only the scene parameters may differ)."""
-    if not sweep.envs:
-        return None
-    groups = model_groups(sweep.envs)
-    if len(groups) > 1:
-        (name, env), first = next(iter(groups[1].items())), groups[0][sweep.envs[0]]
-        raise ValueError(
-            f"SweepSpec.envs: {name!r} does not differ from {sweep.envs[0]!r} only in its "
-            f"scene parameters (observation size {env.observation_size} vs "
-            f"{first.observation_size}); environments that differ in their model (robot, "
-            f"obstacle count, settings) must be separate sweeps")
-    scenes = {name: env.default_scene() for name, env in groups[0].items()}
-    per_row = [scenes[spec.env] for _, spec in sweep.points() for _ in sweep.base.seeds]
-    return jax.tree.map(lambda *xs: jnp.stack(xs), *per_row)
 
 
 class _SweepLog:
@@ -240,7 +117,7 @@ def initial_rows(program: Program, sweep: SweepSpec) -> TrainState:
     keys = seed_keys(sweep.base.seeds)
     state = program.initial_state(jnp.concatenate([keys] * len(sweep.points())),
                                   row_scenes(sweep))
-    return state._replace(hparams=_rows(sweep)[0])
+    return state._replace(hparams=row_values(sweep)[0])
 
 
 def _initial_state(program: Program, sweep: SweepSpec, dirs: list[str], resume: bool
@@ -251,7 +128,7 @@ def _initial_state(program: Program, sweep: SweepSpec, dirs: list[str], resume: 
     if not resume:
         return initial_rows(program, sweep), [{} for _ in dirs], 0
     keys = seed_keys(sweep.base.seeds)
-    hp, _ = _rows(sweep)
+    hp, _ = row_values(sweep)
     template = jax.eval_shape(program.init, keys)
     states, histories, done = [], [], set()
     for d, (_, spec) in zip(dirs, sweep.points(), strict=True):
@@ -275,6 +152,7 @@ def final_table(sweep: SweepSpec, histories: list[dict[str, np.ndarray]]) -> lis
     rows = []
     for (name, spec), hist in zip(sweep.points(), histories, strict=True):
         row: dict[str, Any] = {"point": name, **({"env": spec.env} if sweep.envs else {}),
+                               **({"policy": spec.policy} if sweep.policies else {}),
                                **{k: getattr(spec.ppo, k) for k, _ in sweep.grid}}
         last = hist["mean_reward"][:, -1] if hist else np.full(1, np.nan)
         row["mean_reward"], row["mean_reward_std"] = float(np.mean(last)), float(np.std(last))
@@ -312,7 +190,8 @@ def _write_outputs(sweep: SweepSpec, out_dir: str, histories: list[dict[str, np.
             ax.plot(np.arange(1, curve.size + 1), curve, lw=1.3, label=name)
     ax.set_xlabel("iteration")
     ax.set_ylabel("mean episode return (mean over seeds)")
-    ax.set_title(f"{sweep.base.policy} on {', '.join(sweep.envs or (sweep.base.env,))}: sweep")
+    ax.set_title(f"{', '.join(sweep.policies or (sweep.base.policy,))} on "
+                 f"{', '.join(sweep.envs or (sweep.base.env,))}: sweep")
     ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
     fig.tight_layout()
@@ -346,7 +225,7 @@ def run_sweep(sweep: SweepSpec, out_dir: str, resume: bool = False, progress: bo
             if point_dirs is not None:
                 held.enter_context(lock_run_directory(d))
         ckpt_dirs = [_check_dir(d, resume) for d in dirs]
-        program = build(points[0][1])
+        program = build(sweep.program_spec())
         compile_before = program.compile_seconds
         state, histories, done = _initial_state(program, sweep, dirs, resume)
         atomic_write(os.path.join(out_dir, "sweep.json"),
@@ -364,7 +243,7 @@ def run_sweep(sweep: SweepSpec, out_dir: str, resume: bool = False, progress: bo
                             len(base.seeds))
         try:
             state, done, train_s = _train_chunks(program, base, state, done, log, saver,
-                                                 _rows(sweep)[1])
+                                                 row_values(sweep)[1])
         finally:
             for d, (_, spec), run_log in zip(dirs, points, logs, strict=True):
                 if run_log.history:
@@ -375,5 +254,4 @@ def run_sweep(sweep: SweepSpec, out_dir: str, resume: bool = False, progress: bo
                      program.compile_seconds - compile_before, train_s, steps)
 
 
-__all__ = ["SweepSpec", "final_table", "initial_rows", "model_groups", "parse_grid",
-           "row_scenes", "run_sweep"]
+__all__ = ["final_table", "initial_rows", "run_sweep"]

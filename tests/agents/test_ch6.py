@@ -1,6 +1,7 @@
 """The chapter-6 study (agents/run/ch6.py): the plot stage on synthetic run directories (summary
 numbers against hand-computed values, the figures and tables it writes, a clear error when
-there is nothing to plot) and the train stage's packing of setups that share a model."""
+there is nothing to plot) and the train stage's packing of setups that share a model and policy
+kinds that share a network."""
 
 from __future__ import annotations
 
@@ -10,7 +11,16 @@ import os
 import numpy as np
 import pytest
 
-from agents.run.ch6 import ENVS, packed_groups, plot_all, run_dir, summary_row, train_all
+from agents.run.ch6 import (
+    ENVS,
+    POLICIES,
+    packed_cells,
+    packed_groups,
+    plot_all,
+    run_dir,
+    summary_row,
+    train_all,
+)
 from agents.run.loading import load_run
 from agents.run.logs import write_csv
 
@@ -61,28 +71,36 @@ def test_plot_stage_writes_figures_and_tables(tmp_path):
         plot_all(str(tmp_path / "empty"), figures, smooth=100)
 
 
-def test_train_stage_packs_setups_that_share_a_model(tmp_path, capsys):
-    """env2 and env3 train in one program per policy into their usual run directories; their
-    speed records split the program's wall time; a repeated stage skips the finished runs."""
+def test_train_stage_packs_setups_and_kinds_that_share_a_program(tmp_path, capsys):
+    """env2 and env3 × nn and nn_residual train in one program into their usual run
+    directories; their speed records split the program's wall time; a repeated stage skips the
+    finished runs."""
     assert packed_groups(ENVS) == [("three_link/env1",), ("three_link/env2", "three_link/env3"),
                                    ("franka",)]
+    cells = packed_cells(ENVS, POLICIES)
+    assert len(cells) == 6 and cells[2] == [(e, k) for e in ("three_link/env2", "three_link/env3")
+                                            for k in ("nn", "nn_residual")]
+    assert cells[3] == [("three_link/env2", "rmp_residual"), ("three_link/env3", "rmp_residual")]
     runs = str(tmp_path / "runs")
-    settings = dict(envs=("three_link/env2", "three_link/env3"), policies=("nn",), seeds=(0, 3),
+    settings = dict(envs=("three_link/env2", "three_link/env3"), policies=("nn", "nn_residual"),
+                    seeds=(0, 3),
                     preset_name="cpu", iterations=2, log_every=2, checkpoint_every=2,
                     progress=False, profile=False, num_envs=8, rollout_length=16,
                     num_minibatches=2, update_epochs=2)
     train_all(runs, **settings)
-    records = []
-    for env in settings["envs"]:
-        run = load_run(run_dir(runs, env, "nn"))
-        assert run.spec.env == env and run.iteration == 2 and run.state.iteration.shape == (2,)
-        with open(os.path.join(run_dir(runs, env, "nn"), "speed.json")) as f:
+    records, names = [], []
+    for env, kind in cells[2]:
+        out = run_dir(runs, env, kind)
+        run = load_run(out)
+        assert (run.spec.env, run.spec.policy) == (env, kind) and run.iteration == 2
+        assert run.state.iteration.shape == (2,)
+        with open(os.path.join(out, "speed.json")) as f:
             records.append(json.load(f))
-    assert all(r["packed_with"] == list(settings["envs"]) for r in records)
+        names.append(os.path.basename(out))
+    assert all(r["packed_with"] == names for r in records)
     program_wall = records[0]["segments"][-1]["program_wall_s"]
     assert sum(r["wall_s"] for r in records) == pytest.approx(program_wall)
-    assert os.path.exists(os.path.join(runs, "sweep_three_link-env2_nn+three_link-env3_nn",
-                                       "sweep.json"))
+    assert os.path.exists(os.path.join(runs, "sweep_" + "+".join(names), "sweep.json"))
     capsys.readouterr()
     train_all(runs, **settings)
-    assert capsys.readouterr().err.count("finished (2 iterations), skipped") == 2
+    assert capsys.readouterr().err.count("finished (2 iterations), skipped") == 4

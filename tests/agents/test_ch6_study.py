@@ -11,7 +11,14 @@ import pytest
 from test_ch6 import SEEDS, _history
 
 from agents.run.ch6 import ENVS, POLICIES, plot_all, run_dir
-from agents.run.ch6_study import BASELINES, grid_wall_s, load_baselines, main_table, write_ch6_study
+from agents.run.ch6_study import (
+    BASELINES,
+    deviations,
+    grid_wall_s,
+    load_baselines,
+    main_table,
+    write_ch6_study,
+)
 from agents.run.logs import write_csv
 from mjxrmp.results.summary import load_summary
 
@@ -30,9 +37,12 @@ def grid(tmp_path_factory):
             os.makedirs(out)
             write_csv(os.path.join(out, "metrics.csv"), _history(REWARD[policy]), SEEDS, 64)
             segments = [{"wall_s": 100.0, "versions": {"jax": "x"}}, {"wall_s": 20.0}]
+            # Franka's nn and nn_residual trained packed in one program
+            packed = ({"packed_with": ["franka_nn", "franka_nn_residual"]}
+                      if env == "franka" and policy != "rmp_residual" else {})
             with open(os.path.join(out, "speed.json"), "w") as f:
                 json.dump({"wall_s": 120.0, "device": "GPU", "date": "2026-01-01",
-                           "segments": segments}, f)
+                           "segments": segments, **packed}, f)
     base = {"three_link/env3": {"mean_return": 25.0, "safe_pct": 100.0, "episodes": 64,
                                 "record": {"command": "c", "device": "cpu", "versions": {},
                                            "date": "2026-01-02"}}}
@@ -51,10 +61,15 @@ def test_study_record_from_the_grid(grid):
     rec = study["runs"]["three_link-env3_rmp_residual"]
     assert (rec["device"], rec["date"]) == ("GPU", "2026-01-01")
     assert "--envs three_link/env3 --policies rmp_residual" in rec["command"]
+    assert "--envs franka --policies nn nn_residual " in study["runs"]["franka_nn"]["command"]
     cells = {row["cells"][0]: row["cells"][2] for row in study["headline"]["rows"]}
     # RMP-RESIDUAL 41 (seeds 40 and 42) over NN 11 (10 and 12)
     assert cells["env3 final reward, RMP-RESIDUAL vs NN"] == "41.0 ± 1.0 vs 11.0 ± 1.0, 3.7×"
     assert any(v == "24.0 min" for v in cells.values())
+    assert not any("30-minute target" in d for d in study["deviations"])
+    by = {(r["env"], r["policy"]): r for r in grid[2]["rows"]}
+    assert ("The grid takes 35.0 min of GPU time (NVIDIA H200), above the 30-minute target."
+            in deviations(by, 35 * 60.0, ["NVIDIA H200"]))
     assert any("NN-RESIDUAL learns nearly as fast" in d for d in study["deviations"])
     assert any("RMP-RESIDUAL collides on the Franka in 25 of" in d for d in study["deviations"])
     assert any("RMP-RESIDUAL ends above NN-RESIDUAL (41.0 vs 36.0)" in d

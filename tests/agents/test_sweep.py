@@ -1,6 +1,7 @@
-"""Packed sweeps (agents.run.sweep): one program trains a grid of hyper-parameters × seeds and
-each point equals its separate run up to float32 rounding; a resumed sweep equals the
-uninterrupted one; every point's directory is an ordinary run directory."""
+"""Packed sweeps (agents.run.sweep): one program trains a grid of hyper-parameters, setups that
+share a model and policy kinds that share a network × seeds, and each point equals its separate
+run up to float32 rounding; a resumed sweep equals the uninterrupted one; every point's
+directory is an ordinary run directory."""
 
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ from script_main import load_script
 from agents.ppo.hparams import SWEEPABLE, resolve
 from agents.run.loading import load_run
 from agents.run.spec import RunSpec, preset
-from agents.run.sweep import SweepSpec, parse_grid, run_sweep
+from agents.run.sweep import run_sweep
+from agents.run.sweep_spec import SweepSpec, parse_grid
 from agents.run.training import run_training
 
 #: Every sweepable name is set away from its default (so each is data in the sweep); two points
@@ -110,9 +112,10 @@ def test_bad_grids_are_refused():
         run_sweep(SweepSpec(BASE, GRID), "/nonexistent/sweep", resume=True)
 
 
-#: Two setups that share a model (env2 and env3 differ only in the goal region) in one program.
+#: Two setups that share a model (env2 and env3 differ only in the goal region) × two policy
+#: kinds that share a network (nn: the hand-designed base added with weight 0) in one program.
 SETUPS = SweepSpec(dataclasses.replace(BASE, env="three_link/env2"),
-                   envs=("three_link/env2", "three_link/env3"))
+                   envs=("three_link/env2", "three_link/env3"), policies=("nn", "nn_residual"))
 
 
 @pytest.fixture(scope="module")
@@ -121,24 +124,34 @@ def setups_dir(tmp_path_factory):
     return out, run_sweep(SETUPS, out, progress=False)
 
 
-def test_each_setup_equals_its_separate_run(setups_dir, tmp_path):
-    """acceptance 1 for setups as data: env2 and env3 rows of one program against the two
-    separate runs (each with its own environment), to float32 rounding."""
+def test_each_setup_and_policy_equals_its_separate_run(setups_dir, tmp_path):
+    """acceptance 1 for setups and policy kinds as data: env2 × nn and env3 × nn_residual rows
+    of one program against the two separate runs (each with its own environment and policy
+    module), to float32 rounding."""
     out, result = setups_dir
     points = SETUPS.points()
-    assert [name for name, _ in points] == ["env=three_link-env2", "env=three_link-env3"]
-    for i, (name, spec) in enumerate(points):
+    assert [name for name, _ in points] == [
+        f"env=three_link-{e},policy={k}" for e in ("env2", "env3") for k in ("nn", "nn_residual")]
+    assert SETUPS.program_spec().policy == "nn_residual"
+    np.testing.assert_array_equal(result.state.hparams["base_weight"], [0, 0, 1, 1, 0, 0, 1, 1])
+    for i in (0, 3):
+        name, spec = points[i]
         rows = slice(2 * i, 2 * i + 2)
         alone = _separate_run_matches(spec, str(tmp_path / f"s{i}"), result, rows)
         np.testing.assert_allclose(np.asarray(result.state.env_state.info["goal"])[rows],
                                    np.asarray(alone.state.env_state.info["goal"]), atol=1e-6)
         assert load_run(f"{out}/{name}").spec == spec
     with open(f"{out}/sweep.csv") as f:
-        assert [r["env"] for r in csv.DictReader(f)] == list(SETUPS.envs)
+        table = list(csv.DictReader(f))
+    assert [(r["env"], r["policy"]) for r in table] == [(s.env, s.policy) for _, s in points]
     # the setups really differ: env2's goals keep to its narrower annulus, env3's do not
     goal_r = np.linalg.norm(np.asarray(result.state.env_state.info["goal"]), axis=-1)
-    assert goal_r[:2].max() <= 0.475 + 1e-5 and goal_r[:2].min() >= 0.275 - 1e-5
-    assert goal_r[2:].max() > 0.475 or goal_r[2:].min() < 0.275
+    assert goal_r[:4].max() <= 0.475 + 1e-5 and goal_r[:4].min() >= 0.275 - 1e-5
+    assert goal_r[4:].max() > 0.475 or goal_r[4:].min() < 0.275
+    # so do the kinds: env2's nn and nn_residual rows start alike (same seeds, same network
+    # initialisation) and end apart (the base changes the actions)
+    p = _params(result.state)
+    assert max(np.abs(x[0] - x[2]).max() for x in p) > 1e-5
 
 
 def test_resumed_setups_sweep_equals_the_uninterrupted_one(setups_dir, tmp_path):
@@ -151,11 +164,19 @@ def test_resumed_setups_sweep_equals_the_uninterrupted_one(setups_dir, tmp_path)
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
-def test_setups_that_differ_in_their_model_are_refused(tmp_path):
+def test_setups_and_policies_that_differ_in_their_model_are_refused(tmp_path):
     with pytest.raises(ValueError, match="two or more distinct"):
         SweepSpec(BASE, envs=("three_link/env2",))
-    with pytest.raises(ValueError, match="a grid or two or more envs"):
+    with pytest.raises(ValueError, match="a grid or two or more envs or policies"):
         SweepSpec(BASE)
+    with pytest.raises(ValueError, match=r"\['nn', 'rmp_residual'\] differ in network structure"):
+        SweepSpec(BASE, policies=("nn", "rmp_residual"))
+    with pytest.raises(ValueError, match="two or more distinct policy kinds"):
+        SweepSpec(BASE, policies=("nn", "nn"))
+    with pytest.raises(SystemExit) as refused:  # the command line names the kinds (exit 2)
+        load_script("train.py").main(["--policy", "nn", "rmp_residual", "--out",
+                                      str(tmp_path / "kinds"), "--no-progress"])
+    assert refused.value.code == 2 and not (tmp_path / "kinds").exists()
     mixed = SweepSpec(BASE, envs=("three_link/env2", "three_link/env1"))
     with pytest.raises(ValueError, match=r"'three_link/env1' does not differ .* only in its scene"):
         run_sweep(mixed, str(tmp_path / "mixed"), progress=False)
