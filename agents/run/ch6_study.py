@@ -34,6 +34,8 @@ ABLATION = os.path.join("ablation_sigma_e_0.02", "three_link-env3_rmp_residual_m
 FIGURES = ["fig6_2.png", "fig6_3.png", "fig6_4.png"]
 TRAIN_COMMAND = ("python scripts/reproduce_ch6.py --stage train --envs {env} --policies {policy}"
                  " --no-progress --no-profile")
+#: The ``runs`` entry of the whole grid (its GPU time): every device its runs used.
+GRID = "grid"
 
 
 def evaluate_baselines(runs: str, envs: Sequence[str] = ENVS, episodes: int = 1024,
@@ -161,7 +163,7 @@ def headline(by: dict, wall_s: float) -> list[tuple[str, list[str]]]:
             " / ".join(f"{_fmt_int(r['collisions'])} of {_fmt_int(r['episodes'])}"
                        for _, r in rmp)]))
     if len(by) == len(ENVS) * len(POLICIES):
-        rows.append((name[(fr, "rmp_residual")], [
+        rows.append((GRID, [
             f"the grid on one GPU: {len(ENVS)} setups × {len(POLICIES)} classes × 4 seeds × "
             "500 iterations, GPU wall time summed", "—", f"{wall_s / 60:.1f} min"]))
     return rows
@@ -222,6 +224,12 @@ def write_ch6_study(figures: str, runs: str, summary: dict[str, Any]) -> Path:
     wall = grid_wall_s(runs)
     records = {f"{e.replace('/', '-')}_{p}": _record(runs, e, p) for e, p in sorted(by)}
     devices = sorted({r["device"] for r in records.values()} - {"unknown"})
+    if len(by) == len(ENVS) * len(POLICIES):
+        newest = max(records.values(), key=lambda r: r["date"])
+        records[GRID] = {"command": TRAIN_COMMAND.format(env=" ".join(ENVS),
+                                                         policy=" ".join(POLICIES)),
+                         "device": ", ".join(devices), "versions": newest["versions"],
+                         "date": newest["date"]}
     records.update({f"{e.replace('/', '-')}_hand_designed": b["record"]
                     for e, b in baselines.items()})
     columns, rows = main_table(summary["rows"], baselines, runs)
@@ -257,5 +265,5 @@ def reproduce(stage: str, runs: str, figures: str, smooth: int = 100,
     return None
 
 
-__all__ = ["ABLATION", "BASELINES", "deviations", "evaluate_baselines", "grid_wall_s", "headline",
-           "load_baselines", "main_table", "reproduce", "write_ch6_study"]
+__all__ = ["ABLATION", "BASELINES", "GRID", "deviations", "evaluate_baselines", "grid_wall_s",
+           "headline", "load_baselines", "main_table", "reproduce", "write_ch6_study"]

@@ -57,7 +57,8 @@ def test_study_record_from_the_grid(grid):
     runs, figures, _ = grid
     study = load_summary(os.path.join(figures, "summary.json"))
     assert grid_wall_s(runs) == pytest.approx(12 * 120.0)
-    assert len(study["runs"]) == 13  # 12 trained runs and the env3 baseline
+    assert len(study["runs"]) == 14  # 12 trained runs, the whole grid and the env3 baseline
+    assert study["runs"]["grid"]["device"] == "GPU"
     rec = study["runs"]["three_link-env3_rmp_residual"]
     assert (rec["device"], rec["date"]) == ("GPU", "2026-01-01")
     assert "--envs three_link/env3 --policies rmp_residual" in rec["command"]
