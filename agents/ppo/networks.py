@@ -139,7 +139,10 @@ class PPONetworks:
         if precompute is None:
             return None
         features = precompute(obs)
-        return features if base_weight is None else base_weight * features
+        if base_weight is None:
+            return features
+        # weight 0 gives exactly 0, as the nn policy has no base, even where the base is not finite
+        return jnp.where(base_weight != 0, base_weight * features, 0.0)
 
     def value_apply(self, params: Any, obs: jax.Array, stats: RunningStats) -> jax.Array:
         """State value at ``obs`` (normalised first when the networks normalise)."""

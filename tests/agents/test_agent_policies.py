@@ -9,7 +9,7 @@ import pytest
 
 import envs
 from agents.ppo import PPOConfig, make_train
-from agents.ppo.networks import GaussianPolicy
+from agents.ppo.networks import GaussianPolicy, PPONetworks, ValueMLP
 from agents.ppo.normalization import RunningStats
 from agents.ppo.policies import (
     KINDS,
@@ -19,6 +19,8 @@ from agents.ppo.policies import (
     decode_observation,
     make_env_and_policy,
     make_policy,
+    packed_kind,
+    policy_groups,
 )
 from envs.wrappers import RMPInEnv
 from mjxrmp import policies as rmp_policies
@@ -131,6 +133,33 @@ def test_nn_residual_is_base_plus_small_mlp(three_link):
     assert float(jnp.max(jnp.abs(mean - base))) > 0.0
     mean0, _ = apply(_zero_subtree(params, "mean"), states.obs)
     np.testing.assert_allclose(mean0, base, rtol=1e-4, atol=1e-5)
+
+
+def test_nn_is_nn_residual_with_base_weight_zero(three_link):
+    """One network serves both kinds in a packed sweep (agents.ppo.policies.packed_kind): the
+    same key initialises the same parameters, and the base scaled by weight 0 (exactly 0 even
+    where the base is not finite) gives the nn policy's mean; weight 1 the nn_residual mean."""
+    env, states = three_link
+    nn_pol, res_pol = make_policy("nn", env), make_policy("nn_residual", env)
+    nn_params, nn_apply = _init_apply(nn_pol, 3, states.obs)
+    res_params, res_apply = _init_apply(res_pol, 3, states.obs)
+    for a, b in zip(jax.tree.leaves(nn_params), jax.tree.leaves(res_params), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert jax.tree.structure(nn_params) == jax.tree.structure(res_params)
+    nets = PPONetworks(res_pol, ValueMLP())
+    obs = states.obs
+    np.testing.assert_array_equal(nets.policy_features(obs, jnp.float32(1.0)),
+                                  res_pol.precompute(obs))
+    mean0, _ = res_apply(res_params, obs, None, nets.policy_features(obs, jnp.float32(0.0)))
+    np.testing.assert_array_equal(mean0, nn_apply(nn_params, obs)[0])
+    bad = obs.at[0, 0].set(jnp.nan)
+    assert not bool(jnp.all(jnp.isfinite(res_pol.precompute(bad))))
+    np.testing.assert_array_equal(nets.policy_features(bad, jnp.float32(0.0)), 0.0)
+    with pytest.raises(ValueError, match="base_weight needs"):
+        PPONetworks(nn_pol, ValueMLP()).policy_features(obs, jnp.float32(0.0))
+    assert packed_kind(("nn", "nn_residual")) == "nn_residual" == packed_kind(("nn_residual",))
+    assert policy_groups(("nn", "rmp_residual", "nn_residual")) == [("nn", "nn_residual"),
+                                                                     ("rmp_residual",)]
 
 
 def test_rmp_residual_zero_residual_is_preset(three_link):
