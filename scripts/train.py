@@ -159,7 +159,8 @@ def main(argv: list[str] | None = None) -> int:
     except (TypeError, ValueError) as e:
         p.error(str(e))
     if sweep is not None and (devices or 1) > 1:
-        p.error("--grid runs on one device and one process; leave out --devices")
+        p.error("a sweep (--grid, several --env or --policy) runs on one device and one process; "
+                "leave out --devices")
     stem = f"{'+'.join(e.replace('/', '-') for e in args.env)}_{'+'.join(args.policy)}"
     out = args.out or os.path.join("runs", f"sweep_{stem}" if sweep else stem)
     print(f"training {', '.join(args.policy)} on {', '.join(args.env)}, seeds "
