@@ -287,15 +287,9 @@ def packed_kind(kinds: Sequence[str]) -> str:
 def policy_groups(kinds: Sequence[str]) -> list[tuple[str, ...]]:
     """``kinds`` grouped into what one program can train (:func:`packed_kind`), in order of
     first appearance."""
-    groups: list[tuple[str, ...]] = []
-    for kind in kinds:
-        i = next((i for i, g in enumerate(groups) if kind in BASE_WEIGHT and g[0] in BASE_WEIGHT),
-                 None)
-        if i is None:
-            groups.append((kind,))
-        else:
-            groups[i] = (*groups[i], kind)
-    return groups
+    shared = tuple(k for k in kinds if k in BASE_WEIGHT)
+    return [shared if kind in BASE_WEIGHT else (kind,)
+            for kind in kinds if kind not in BASE_WEIGHT or kind == shared[0]]
 
 
 def make_policy(kind: str, env, **overrides) -> nn.Module:

@@ -121,8 +121,8 @@ def _train_group(specs: list[RunSpec], outs: list[str], sweep_dir: str, resume: 
         raise
     wall = time.perf_counter() - t0
     done = int(result.history["mean_reward"].shape[1])
-    program = build(specs[0] if sweep is None else sweep.program_spec())
-    split = profile_iteration(program, result.state) if profile else None
+    split = profile_iteration(build(specs[0] if sweep is None else sweep.program_spec()),
+                              result.state) if profile else None
     records = []
     for spec, seg, path in zip(specs, segments, paths, strict=True):
         seg.append(_segment(start, wall / n, to_iteration=done, program_wall_s=wall,
