@@ -11,21 +11,30 @@ limit, solver iterations with a 50-step line search for every environment of the
 :func:`substep_unroll` says how the physics substeps of a control step are looped
 (docs/design.md §5.9): written out one after the other on a GPU, where a loop's iteration costs
 kernel launches and copies of the whole simulation state, a loop elsewhere.
+
+:func:`written_out_mass_solves` has MuJoCo-MJX factor and solve with the mass matrix through
+:mod:`mjxrmp.core.linalg`'s written-out Cholesky instead of the library's (docs/design.md §5.10).
 """
 
 from __future__ import annotations
 
+import contextlib
 import copy
+from collections.abc import Iterator
 
 import jax
+import jax.scipy.linalg
 import mujoco
+
+from mjxrmp.core import linalg
 
 #: The ``mjtDisableBit`` flags of the constraint pipeline: the constraint solver itself and the
 #: contact, equality, friction-loss and joint-limit rows.
 CONSTRAINT_STAGES = ("mjDSBL_CONSTRAINT", "mjDSBL_CONTACT", "mjDSBL_EQUALITY",
                      "mjDSBL_FRICTIONLOSS", "mjDSBL_LIMIT")
 
-__all__ = ["CONSTRAINT_STAGES", "constraint_stages_on", "set_constraint_stages", "substep_unroll"]
+__all__ = ["CONSTRAINT_STAGES", "constraint_stages_on", "set_constraint_stages", "substep_unroll",
+           "written_out_mass_solves"]
 
 
 def _mask() -> int:
@@ -58,3 +67,23 @@ def substep_unroll(substeps: int, unroll: bool | None) -> int:
     if unroll is None:
         unroll = jax.default_backend() == "gpu"
     return substeps if unroll else 1
+
+
+@contextlib.contextmanager
+def written_out_mass_solves(on: bool = True) -> Iterator[None]:
+    """While tracing inside it (``on``), ``jax.scipy.linalg.cho_factor``/``cho_solve`` are
+    :func:`mjxrmp.core.linalg.cho_factor`/:func:`~mjxrmp.core.linalg.cho_solve`: MJX's dense
+    mass-matrix factorisations and solves (two of each per ``mjx.step`` under ``implicitfast``)
+    become elementwise arithmetic XLA fuses, instead of batched cuSOLVER/cuBLAS calls with gaps
+    between them. The same factorisation up to rounding (docs/design.md §5.10); a compiled
+    program is unaffected by leaving the context. Not for threads tracing at the same time."""
+    if not on:
+        yield
+        return
+    module = jax.scipy.linalg
+    saved = module.cho_factor, module.cho_solve
+    module.cho_factor, module.cho_solve = linalg.cho_factor, linalg.cho_solve
+    try:
+        yield
+    finally:
+        module.cho_factor, module.cho_solve = saved

@@ -35,8 +35,8 @@ the models have no contacts or equality constraints and the position targets are
 joint ranges, so the solver has nothing to do that changes the motion, but under MJX it costs up
 to a third of a control step. ``constraint_stages=True`` simulates the MJCF as generated
 (joint-limit constraints included). On a GPU the substeps of a control step are written out
-rather than looped (``unroll_substeps``, default: on a GPU only; docs/design.md §5.9): the same
-operations, without a loop's per-iteration launches and state copies.
+rather than looped (``unroll_substeps``, default: on a GPU only; §5.9); ``written_out_solves``
+writes out MJX's mass-matrix factorisations and solves (§5.10; off by default).
 
 **Reward** per substep :func:`envs.base.reach_reward` with ``τ = data.qfrc_actuator`` as the
 effort (``exp(−½‖x−g‖²/σ²) − Σ_i max(0, 1 − d_i/δ) − λ‖τ‖²`` clipped to ``[−5, 1]``; ``d_i`` the
@@ -75,7 +75,7 @@ from envs.base import (
     reach_reward,
     sample_first_valid,
 )
-from envs.physics import set_constraint_stages, substep_unroll
+from envs.physics import set_constraint_stages, substep_unroll, written_out_mass_solves
 from mjxrmp.config import check_bool, check_choice, check_float, check_int
 from mjxrmp.geometry import Obstacles
 from mjxrmp.leaves.hand_designed import safe_norm
@@ -116,6 +116,7 @@ class ReachEnv(Env):
         measured_velocity: bool = False,
         constraint_stages: bool = False,
         unroll_substeps: bool | None = None,
+        written_out_solves: bool = False,
     ):
         settings = {k: v for k, v in locals().items() if k != "self"}  # the arguments only
         name = type(self).__name__
@@ -134,6 +135,7 @@ class ReachEnv(Env):
         if unroll_substeps is not None:
             check_bool(unroll_substeps, f"{name}.unroll_substeps")
         self.substep_unroll = substep_unroll(self.substeps, unroll_substeps)
+        self.written_out_solves = check_bool(written_out_solves, f"{name}.written_out_solves")
         self.mj_model = set_constraint_stages(mujoco.MjModel.from_xml_string(xml),
                                               self.constraint_stages)
         # this process's first device: in a multi-process run jax.devices()[0] is process 0's
@@ -229,16 +231,14 @@ class ReachEnv(Env):
     def _scene_margin(self, q0: jax.Array, goal: jax.Array, obstacles: Obstacles) -> jax.Array:
         """Clearance margin of a scene: the smaller of the robot's and the goal's clearance to
         the obstacles, minus :attr:`clearance` (≥ 0: valid)."""
-        return jnp.minimum(
-            self._robot_clearance(q0, obstacles), self._goal_clearance(goal, obstacles)
-        ) - self.clearance
+        return jnp.minimum(self._robot_clearance(q0, obstacles),
+                           self._goal_clearance(goal, obstacles)) - self.clearance
 
     def _sample_q0(self, key: jax.Array, spread: float = 0.1, qd_spread: float = 0.005):
         k_q, k_qd = jax.random.split(key)
         d = self.robot.dof
         q0 = jnp.asarray(self.robot.default_q, jnp.float32) + jax.random.uniform(
-            k_q, (d,), minval=-spread, maxval=spread
-        )
+            k_q, (d,), minval=-spread, maxval=spread)
         lo = jnp.where(jnp.isfinite(self._q_lower), self._q_lower, -jnp.inf)
         q0 = jnp.clip(q0, lo, self._q_upper)
         qd0 = jax.random.uniform(k_qd, (d,), minval=-qd_spread, maxval=qd_spread)
@@ -350,13 +350,13 @@ class ReachEnv(Env):
         def body(carry, _):
             data, qv = carry
             q_t = jnp.clip(data.qpos + qv * self.sim_dt, self._q_lower, self._q_upper)
-            at_limit = (lower_finite & (q_t <= self._q_lower)) | (
-                upper_finite & (q_t >= self._q_upper)
-            )
+            at_limit = ((lower_finite & (q_t <= self._q_lower))
+                        | (upper_finite & (q_t >= self._q_upper)))
             qd_t = jnp.where(at_limit, 0.0, qv + a * self.sim_dt)
             qd_t = jnp.clip(qd_t, -self._qd_max, self._qd_max)
             data = data.replace(ctrl=jnp.concatenate([q_t, qd_t]).astype(data.ctrl.dtype))
-            data = mjx.step(self.mjx_model, data)
+            with written_out_mass_solves(self.written_out_solves):
+                data = mjx.step(self.mjx_model, data)
             dist_goal = safe_norm(self.robot.end_effector(data.qpos) - goal)
             d = self.distances(data.qpos, obstacles)
             d_obs = jnp.min(jnp.where(obstacles.active[None, :] > 0, d, jnp.inf), axis=0)

@@ -16,11 +16,15 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import jax.scipy.linalg
 
 #: Largest size written out entry by entry; larger systems use ``jnp.linalg``.
 MAX_UNROLLED = 12
+#: The library's solve, kept for the sizes it handles even while :mod:`envs.physics` lets
+#: MuJoCo-MJX call :func:`cho_solve` in its place.
+_LIBRARY_CHO_SOLVE = jax.scipy.linalg.cho_solve
 
-__all__ = ["MAX_UNROLLED", "cholesky", "spd_solve"]
+__all__ = ["MAX_UNROLLED", "cho_factor", "cho_solve", "cholesky", "spd_solve"]
 
 
 def _check_square(name: str, M: jax.Array) -> int:
@@ -110,5 +114,26 @@ def spd_solve(M: jax.Array, f: jax.Array) -> jax.Array:
                          f"{f.shape}")
     if n > MAX_UNROLLED:
         sym = 0.5 * (M + jnp.swapaxes(M, -1, -2))
-        return jax.scipy.linalg.cho_solve((jnp.linalg.cholesky(sym), True), f[..., None])[..., 0]
+        return _LIBRARY_CHO_SOLVE((jnp.linalg.cholesky(sym), True), f[..., None])[..., 0]
     return _solve_unrolled(M, f)
+
+
+def cho_factor(a: jax.Array, lower: bool = False) -> tuple[jax.Array, bool]:
+    """``(c, lower)`` as :func:`jax.scipy.linalg.cho_factor` returns it: the Cholesky factor of
+    the symmetric positive-definite ``a (..., n, n)``, ``L`` with ``L Lᵀ = a`` where ``lower``,
+    else ``U = Lᵀ``, the other triangle zero. Written out up to :data:`MAX_UNROLLED`; reads the
+    symmetric part of ``a`` (for a symmetric ``a`` exactly ``a``)."""
+    L = cholesky(a)
+    return (L if lower else jnp.swapaxes(L, -1, -2)), lower
+
+
+def cho_solve(c_and_lower: tuple[jax.Array, bool], b: jax.Array) -> jax.Array:
+    """``x`` with ``a x = b`` from :func:`cho_factor`'s ``(c, lower)``, as
+    :func:`jax.scipy.linalg.cho_solve` computes it: forward then backward substitution, written
+    out for one right-hand side ``b (..., n)`` up to :data:`MAX_UNROLLED`, else the library's."""
+    c, lower = c_and_lower
+    n = _check_square("cho_solve: c", c)
+    if n > MAX_UNROLLED or b.shape != c.shape[:-1]:
+        return _LIBRARY_CHO_SOLVE((c, lower), b)
+    L = [[c[..., i, k] if lower else c[..., k, i] for k in range(i + 1)] for i in range(n)]
+    return _substitute(L, b)

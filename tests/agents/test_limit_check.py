@@ -2,7 +2,8 @@
 run without it by default, ``constraint_stages=True`` restores the model as generated, the
 trajectories of both agree (3-link exactly, Franka to float rounding), and the joint-limit
 check of agents.bench.phases takes any policy, trained runs included. Unrolling the physics
-substeps (docs/design.md §5.9) changes no trajectory."""
+substeps (docs/design.md §5.9) and writing out MJX's mass-matrix solves (§5.10) change no
+trajectory."""
 
 from __future__ import annotations
 
@@ -19,7 +20,13 @@ from agents.bench.phases import limit_excursions
 from agents.bench.profile import limit_checks
 from agents.run.spec import RunSpec, preset
 from agents.run.training import run_training
-from envs.physics import CONSTRAINT_STAGES, constraint_stages_on, set_constraint_stages
+from envs.physics import (
+    CONSTRAINT_STAGES,
+    constraint_stages_on,
+    set_constraint_stages,
+    written_out_mass_solves,
+)
+from mjxrmp.core import linalg
 
 
 def test_environments_drop_the_constraint_pipeline_by_default():
@@ -84,6 +91,35 @@ def test_unrolled_substeps_give_the_same_trajectories(name):
                                _rollout_of(name, unroll_substeps=False), rtol=0, atol=1e-6)
     with pytest.raises(ValueError, match="unroll_substeps"):
         envs.make(name, unroll_substeps=1)
+
+
+def _primitives(env) -> set[str]:
+    """The primitives of one traced control step of ``env`` (nested jaxprs included)."""
+    state = env.reset(jax.random.PRNGKey(0))
+    text = str(jax.make_jaxpr(env.step)(state, jnp.zeros(env.action_size)))
+    return {name for name in ("cholesky", "triangular_solve") if name in text}
+
+
+@pytest.mark.parametrize("name", ["three_link/env3", "franka"])
+def test_written_out_mass_solves_give_the_same_trajectories(name):
+    """MJX's mass-matrix factorisations and solves written out (``written_out_solves=True``,
+    docs/design.md §5.10) leave no library Cholesky or triangular solve in the control step
+    and give the library's joint trajectories (40 random-action control steps × 4
+    environments) to float rounding; the context restores JAX's functions, also after an
+    error; off is the default."""
+    assert _primitives(envs.make(name, written_out_solves=True)) == set()
+    assert _primitives(envs.make(name)) == {"cholesky", "triangular_solve"}
+    np.testing.assert_allclose(_rollout_of(name, written_out_solves=True, unroll_substeps=False),
+                               _rollout_of(name, unroll_substeps=False), rtol=0, atol=1e-6)
+    library = jax.scipy.linalg.cho_factor, jax.scipy.linalg.cho_solve
+    with pytest.raises(RuntimeError, match="inside"), written_out_mass_solves():
+        assert jax.scipy.linalg.cho_factor is linalg.cho_factor
+        raise RuntimeError("inside")
+    with written_out_mass_solves(False):
+        assert (jax.scipy.linalg.cho_factor, jax.scipy.linalg.cho_solve) == library
+    assert (jax.scipy.linalg.cho_factor, jax.scipy.linalg.cho_solve) == library
+    with pytest.raises(ValueError, match="written_out_solves"):
+        envs.make(name, written_out_solves=1)
 
 
 def test_limit_check_takes_any_policy():

@@ -6,13 +6,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.linalg
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import envs
 from envs.evaluate import frozen_step, hand_designed_policy
 from mjxrmp.core import rmp2
-from mjxrmp.core.linalg import MAX_UNROLLED, cholesky, spd_solve
+from mjxrmp.core.linalg import MAX_UNROLLED, cho_factor, cho_solve, cholesky, spd_solve
 
 
 def _spd(rng: np.random.Generator, batch: int, n: int, floor: float = 1e-2) -> np.ndarray:
@@ -32,6 +33,27 @@ def test_float64_agrees_with_lapack(n):
     np.testing.assert_allclose(L, np.linalg.cholesky(M), rtol=0, atol=1e-11)
     assert np.all(np.triu(L, 1) == 0.0)
     np.testing.assert_allclose(x, np.linalg.solve(M, f[..., None])[..., 0], rtol=1e-9, atol=1e-11)
+
+
+@pytest.mark.parametrize("n", [1, 3, 9, MAX_UNROLLED + 1])
+@pytest.mark.parametrize("lower", [True, False])
+def test_cho_factor_and_cho_solve_agree_with_scipy(n, lower):
+    """The ``(c, lower)`` pair and the solve as scipy.linalg computes them in float64: ``c``'s
+    triangle equals scipy's factor, the other triangle is zero; one right-hand side is written
+    out, several (``(n, k)``) and sizes above MAX_UNROLLED go to the library."""
+    rng = np.random.default_rng(10 * n + lower)
+    M, f, F = _spd(rng, 1, n)[0], rng.normal(size=n), rng.normal(size=(n, 2))
+    ref = scipy.linalg.cho_factor(M, lower=lower)
+    keep = np.tril if lower else np.triu
+    with jax.enable_x64(True):
+        c, low = cho_factor(jnp.asarray(M), lower=lower)
+        x = np.asarray(cho_solve((c, low), jnp.asarray(f)))
+        X = np.asarray(cho_solve((c, low), jnp.asarray(F)))
+    assert low is lower
+    np.testing.assert_allclose(np.asarray(c), keep(ref[0]), rtol=0, atol=1e-11)
+    assert np.all(np.asarray(c) == keep(np.asarray(c)))
+    np.testing.assert_allclose(x, scipy.linalg.cho_solve(ref, f), rtol=1e-9, atol=1e-11)
+    np.testing.assert_allclose(X, scipy.linalg.cho_solve(ref, F), rtol=1e-9, atol=1e-11)
 
 
 @settings(max_examples=40, deadline=None)
