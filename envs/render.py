@@ -35,7 +35,7 @@ def trajectory(env: Env, policy: Callable[[State], jax.Array], key: jax.Array,
                steps: int) -> dict[str, Any]:
     """One episode of ``policy(state) -> action`` from ``env.reset(key)`` (frozen after done):
     joint positions ``q (steps + 1, dof)``, done flags, goal distances, goal, obstacles
-    (``centers``, ``radii``) and the episode return."""
+    (``centers``, ``radii`` of the active obstacles) and the episode return."""
     step = frozen_step(env, policy)
 
     @jax.jit
@@ -51,13 +51,14 @@ def trajectory(env: Env, policy: Callable[[State], jax.Array], key: jax.Array,
 
     first, final, (qs, done, dist) = run(key)
     q0 = np.asarray(first.pipeline_state.qpos)[None]
+    active = np.asarray(first.info["obstacles"].active) > 0  # padding slots are not drawn
     return {
         "q": np.concatenate([q0, np.asarray(qs)]),
         "done": np.concatenate([[0.0], np.asarray(done)]),
         "goal_distance": np.concatenate([[np.nan], np.asarray(dist)]),
         "goal": np.asarray(first.info["goal"]),
-        "centers": np.asarray(first.info["obstacles"].center),
-        "radii": np.asarray(first.info["obstacles"].radius),
+        "centers": np.asarray(first.info["obstacles"].center)[active],
+        "radii": np.asarray(first.info["obstacles"].radius)[active],
         "return": float(final.info["episode_return"]),
     }
 

@@ -40,7 +40,12 @@ class ThreeLinkReach(ReachEnv):
       ``obstacle_sampler="thesis"`` (default): area-uniform in the annulus r ∈ [0.4, 0.9]
       (thesis text); ``"original"``: radius U[0.4, 0.5], angle U[0, 2π) (the original code's
       2-D torus sampler with major 0.65, minor 0.25);
-    * ``env1`` has 1 obstacle (observation size 16), ``env2``/``env3`` have 3 (size 26);
+    * ``env1`` has 1 obstacle, ``env2``/``env3`` have 3. Every setup has ``num_obstacles = 3``
+      obstacle slots (observation size 26); env1's other two are inactive padding (zero
+      vectors, radius −1 in the observation; ignored by the reward, the collision check, the
+      clearance rule and the RMP² policies). The count is a scene parameter
+      (``obstacle_count``), so the three setups share one model (docs/design.md §2.2);
+      ``num_obstacles=1`` gives env1 the thesis's unpadded observation (size 16);
     * clearance ≥ 0.1 between goal and obstacles and between the initial robot and obstacles.
 
     Build it with ``envs.make("three_link/env3", ...)``; other keyword arguments go to
@@ -69,17 +74,20 @@ class ThreeLinkReach(ReachEnv):
             self.goal_region = (0.275, 0.475, math.pi, math.pi / 2)
         self.obstacle_region = (0.4, 0.9) if obstacle_sampler == "thesis" else (0.4, 0.5)
         self.obstacle_radius_range = (0.05, 0.10)
-        if num_obstacles is None:
-            num_obstacles = 1 if setup == "env1" else 3
+        n = 3 if num_obstacles is None else num_obstacles
+        #: Active obstacles of the setup's scenes (at most the slots): env1 1, env2/env3 3.
+        self.obstacle_count = min(1 if setup == "env1" else 3, n)
         self.model_settings = {"obstacle_sampler": obstacle_sampler}
-        super().__init__(xml=three_link_mjcf(kp=kp, kv=kv), num_obstacles=num_obstacles, **kwargs)
+        super().__init__(xml=three_link_mjcf(kp=kp, kv=kv), num_obstacles=n, **kwargs)
 
     def default_scene(self) -> dict[str, jax.Array]:
         """``goal_region`` (r_min, r_max, angle centre, angle range), ``obstacle_region``
-        (r_min, r_max of the centres) and ``obstacle_radius`` (min, max) as float32 arrays."""
+        (r_min, r_max of the centres), ``obstacle_radius`` (min, max) and ``obstacle_count``
+        (the active obstacles, the first slots) as float32 arrays."""
         return {"goal_region": jnp.asarray(self.goal_region, jnp.float32),
                 "obstacle_region": jnp.asarray(self.obstacle_region, jnp.float32),
-                "obstacle_radius": jnp.asarray(self.obstacle_radius_range, jnp.float32)}
+                "obstacle_radius": jnp.asarray(self.obstacle_radius_range, jnp.float32),
+                "obstacle_count": jnp.asarray(self.obstacle_count, jnp.float32)}
 
     def _candidate(self, key: jax.Array, q0: jax.Array, scene: dict[str, jax.Array]):
         k_g, k_c, k_r = jax.random.split(key, 3)
@@ -89,5 +97,6 @@ class ThreeLinkReach(ReachEnv):
         centers = annulus(k_c, (n,), lo, hi, area_uniform=self.obstacle_sampler == "thesis")
         r_lo, r_hi = scene["obstacle_radius"]
         radius = jax.random.uniform(k_r, (n,), minval=r_lo, maxval=r_hi)
-        obstacles = Obstacles(centers, radius, jnp.ones((n,), jnp.float32))
+        active = (jnp.arange(n) < scene["obstacle_count"]).astype(jnp.float32)
+        obstacles = Obstacles(centers, radius, active)
         return (goal, obstacles), self._scene_margin(q0, goal, obstacles)

@@ -11,8 +11,9 @@ Every checkpoint (``--steps``, default ``latest``, of every run directory writte
 episodes of ``--horizon`` control steps (default: the environment's 600) on each setup (default:
 the run's own environment). Checkpoints of the same environment and policy kind run as one
 compiled call; every parameter set sees the same episodes (scenes from ``--eval-seed``). A
-policy runs only on setups whose observations it can read (3-link ``env1`` has size 16,
-``env2``/``env3`` size 26). See :mod:`agents.run.evaluation` and :mod:`agents.run.eval_report`.
+policy runs only on setups whose observations it can read (every 3-link setup has size 26, so
+a 3-link policy runs on all three; the Franka's has 45). See :mod:`agents.run.evaluation` and
+:mod:`agents.run.eval_report`.
 
 **Output.** A table (run, iteration, setup, mean episode return ± std over training seeds,
 success %, safe %, final goal distance) and, with ``--json``, every number: per training seed

@@ -16,9 +16,9 @@ separate groups, one compiled call each. Every member of a group sees the same e
 from ``eval_seed``): common random numbers across checkpoints, seeds and runs.
 
 **Other setups.** A policy reads the observation layout it was trained on, so a 3-link policy
-runs on another 3-link setup only when the observations agree (``env1`` has 1 obstacle,
-observation size 16; ``env2``/``env3`` have 3, size 26): mismatches are refused naming both
-sizes. The report and its table are in :mod:`agents.run.eval_report`.
+runs on another 3-link setup when the observations agree (every setup has three obstacle
+slots, size 26; ``env1`` built with ``num_obstacles=1`` has size 16): mismatches are refused
+naming both sizes. The report and its table are in :mod:`agents.run.eval_report`.
 
 **Checked inputs.** ``"latest"`` and ``"all"`` mean intact checkpoints (a corrupt one is skipped
 with a one-line warning naming it; :mod:`agents.run.checkpoint`); an explicitly requested

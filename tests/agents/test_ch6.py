@@ -72,24 +72,25 @@ def test_plot_stage_writes_figures_and_tables(tmp_path):
 
 
 def test_train_stage_packs_setups_and_kinds_that_share_a_program(tmp_path, capsys):
-    """env2 and env3 × nn and nn_residual train in one program into their usual run
+    """The three 3-link setups × nn and nn_residual train in one program into their usual run
     directories; their speed records split the program's wall time; a repeated stage skips the
     finished runs."""
-    assert packed_groups(ENVS) == [("three_link/env1",), ("three_link/env2", "three_link/env3"),
-                                   ("franka",)]
+    three = ("three_link/env1", "three_link/env2", "three_link/env3")
+    assert packed_groups(ENVS) == [three, ("franka",)]
     cells = packed_cells(ENVS, POLICIES)
-    assert len(cells) == 6 and cells[2] == [(e, k) for e in ("three_link/env2", "three_link/env3")
-                                            for k in ("nn", "nn_residual")]
-    assert cells[3] == [("three_link/env2", "rmp_residual"), ("three_link/env3", "rmp_residual")]
+    assert len(cells) == 4 and cells[0] == [(e, k) for e in three for k in ("nn", "nn_residual")]
+    assert cells[1] == [(e, "rmp_residual") for e in three]
+    assert cells[2:] == [[("franka", "nn"), ("franka", "nn_residual")],
+                         [("franka", "rmp_residual")]]
     runs = str(tmp_path / "runs")
-    settings = dict(envs=("three_link/env2", "three_link/env3"), policies=("nn", "nn_residual"),
+    settings = dict(envs=three, policies=("nn", "nn_residual"),
                     seeds=(0, 3),
                     preset_name="cpu", iterations=2, log_every=2, checkpoint_every=2,
                     progress=False, profile=False, num_envs=8, rollout_length=16,
                     num_minibatches=2, update_epochs=2)
     train_all(runs, **settings)
     records, names = [], []
-    for env, kind in cells[2]:
+    for env, kind in cells[0]:
         out = run_dir(runs, env, kind)
         run = load_run(out)
         assert (run.spec.env, run.spec.policy) == (env, kind) and run.iteration == 2
@@ -103,4 +104,4 @@ def test_train_stage_packs_setups_and_kinds_that_share_a_program(tmp_path, capsy
     assert os.path.exists(os.path.join(runs, "sweep_" + "+".join(names), "sweep.json"))
     capsys.readouterr()
     train_all(runs, **settings)
-    assert capsys.readouterr().err.count("finished (2 iterations), skipped") == 4
+    assert capsys.readouterr().err.count("finished (2 iterations), skipped") == 6

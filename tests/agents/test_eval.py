@@ -150,8 +150,9 @@ def test_sweep_equals_separate_evaluations(sweep):
 
 def test_mismatched_setup_is_refused(sweep):
     run = sweep.checkpoints[1]
-    with pytest.raises(ValueError, match=r"observation size 16\).*observation size 26"):
-        run_sweep([run], ["three_link/env3"], num_episodes=2, horizon=2)
+    assert setup_env(run, "three_link/env3").observation_size == 26  # the setups share a model
+    with pytest.raises(ValueError, match=r"observation size 26\).*observation size 45"):
+        run_sweep([run], ["franka"], num_episodes=2, horizon=2)
     with pytest.raises(ValueError, match="valid setups"):
         setup_env(run, "point2d")
     # checkpoints of another environment/policy kind form their own group
@@ -182,8 +183,8 @@ def test_report_with_gif_of_the_best_episode(trained, tmp_path):
     evaluated = row["per_episode"]["return"][row["seeds"].index(shown["seed"])][0]
     np.testing.assert_allclose(shown["return"], evaluated, rtol=1e-4, atol=1e-7)
 
-    with pytest.raises(ValueError, match=r"observation size 16\).*observation size 26"):
-        evaluate_runs([out], setups=["three_link/env3"], num_episodes=2)
+    with pytest.raises(ValueError, match=r"observation size 26\).*observation size 45"):
+        evaluate_runs([out], setups=["franka"], num_episodes=2)
     with pytest.raises(FileNotFoundError, match=r"available: \[2, 4\]"):
         evaluate_runs([out], ["3"])
     with pytest.raises(FileNotFoundError, match="does not exist"):
@@ -218,7 +219,7 @@ def test_export_checkpoint_matches_deterministic_policy(trained, tmp_path):
     loaded = load_run(out)
     apply_fn, params = deterministic_policy(loaded, 1)
     assert params.norm is not None  # normalize_observations=True in SPEC
-    obs = np.asarray(jax.random.normal(jax.random.PRNGKey(5), (7, 16)), np.float32)
+    obs = np.asarray(jax.random.normal(jax.random.PRNGKey(5), (7, 26)), np.float32)
     expected = np.asarray(jax.jit(apply_fn)(params, obs))
     exported = jax_export.deserialize(bytearray(path.read_bytes()))
     np.testing.assert_allclose(np.asarray(exported.call(obs)), expected, rtol=1e-5, atol=1e-6)

@@ -21,7 +21,7 @@ from agents.run.sweep_spec import SweepSpec, parse_grid
 from agents.run.training import run_training
 
 #: Every sweepable name is set away from its default (so each is data in the sweep); two points
-#: differ in the learning rate. 3-link env1 (one obstacle): the cheapest reaching task to compile.
+#: differ in the learning rate. 3-link env1: the cheapest reaching task to compile.
 GRID = (("learning_rate", (3e-4, 1e-3)), ("ent_coef", (0.01,)), ("clip_eps", (0.15,)),
         ("vf_coef", (0.7,)), ("gamma", (0.97,)), ("gae_lambda", (0.9,)))
 BASE = RunSpec(env="three_link/env1", policy="nn", seeds=(0, 3),
@@ -177,11 +177,11 @@ def test_setups_and_policies_that_differ_in_their_model_are_refused(tmp_path):
         load_script("train.py").main(["--policy", "nn", "rmp_residual", "--out",
                                       str(tmp_path / "kinds"), "--no-progress"])
     assert refused.value.code == 2 and not (tmp_path / "kinds").exists()
-    mixed = SweepSpec(BASE, envs=("three_link/env2", "three_link/env1"))
-    with pytest.raises(ValueError, match=r"'three_link/env1' does not differ .* only in its scene"):
+    mixed = SweepSpec(BASE, envs=("three_link/env2", "franka"))
+    with pytest.raises(ValueError, match=r"'franka' does not differ .* only in its scene"):
         run_sweep(mixed, str(tmp_path / "mixed"), progress=False)
     assert not (tmp_path / "mixed" / "sweep.json").exists()
     # the command line: several --env setups are a sweep, refused the same way (exit 2)
-    code = load_script("train.py").main(["--env", "three_link/env2", "three_link/env1",
+    code = load_script("train.py").main(["--env", "three_link/env2", "franka",
                                          "--out", str(tmp_path / "cli"), "--no-progress"])
     assert code == 2 and not (tmp_path / "cli" / "sweep.json").exists()

@@ -62,9 +62,10 @@ def rollout_a():
 
 
 def test_observation_sizes_and_layout():
-    sizes = {"three_link/env1": 16, "three_link/env2": 26, "three_link/env3": 26}
+    sizes = {"three_link/env1": 26, "three_link/env2": 26, "three_link/env3": 26, "env1/1": 16}
     for name, size in sizes.items():
-        env = envs.make(name)
+        env = (envs.make("three_link/env1", num_obstacles=1) if name == "env1/1"
+               else envs.make(name))
         assert env.observation_size == size
         assert env.action_size == 3 and env.backend == "mjx"
         layout = env.observation_layout()
@@ -242,9 +243,10 @@ def test_three_link_sampler_rules(setup, sampler):
     q0, qd0, goal, obs, ok = jax.jit(jax.vmap(env.sample_scene))(keys)
     assert float(jnp.mean(ok)) == 1.0
     q0, qd0, goal = np.asarray(q0), np.asarray(qd0), np.asarray(goal)
-    c, r = np.asarray(obs.center), np.asarray(obs.radius)
-    n_obs = 1 if setup == "env1" else 3
-    assert c.shape == (N_SAMPLES, n_obs, 2)
+    n_obs = 1 if setup == "env1" else 3  # active obstacles, the first of three slots
+    assert obs.center.shape == (N_SAMPLES, 3, 2)
+    assert np.all(np.asarray(obs.active) == (np.arange(3) < n_obs))
+    c, r = np.asarray(obs.center)[:, :n_obs], np.asarray(obs.radius)[:, :n_obs]
     assert np.all(np.abs(q0) <= 0.1) and np.all(np.abs(qd0) <= 0.005)
     if setup == "env3":
         assert np.all(_in_sector(goal, 0.125, 0.625, np.pi, np.pi))

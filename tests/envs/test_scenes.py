@@ -1,6 +1,7 @@
 """Scene parameters as data (envs.reaching.ReachEnv.default_scene): a setup is its scene
-sampler's parameters, so environments that share a model (three_link env2/env3) run in one
-program, each environment with its own scene, through resets and automatic resets."""
+sampler's parameters, so environments that share a model (the three_link setups; env1 has
+three obstacle slots, one active) run in one program, each environment with its own scene,
+through resets and automatic resets."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import envs
+from envs.evaluate import frozen_step, hand_designed_policy
 from envs.three_link import ThreeLinkReach
 from envs.wrappers import wrap
 
@@ -42,23 +44,54 @@ def test_a_reset_of_another_setups_scene_is_that_setups_reset(setups):
 
 def test_which_setups_share_a_model(setups):
     assert setups["env2"].shares_model(setups["env3"])
-    assert not setups["env1"].shares_model(setups["env2"])  # one obstacle: another obs size
+    assert setups["env1"].shares_model(setups["env2"])  # one obstacle active of three slots
+    assert not envs.make("three_link/env1", num_obstacles=1).shares_model(setups["env1"])
     assert not setups["env3"].shares_model(ThreeLinkReach("env3", obstacle_sampler="original"))
     assert not setups["env3"].shares_model(envs.make("franka"))
     assert envs.make("franka").shares_model(envs.make("franka"))
 
 
+def test_padded_env1_runs_the_unpadded_episodes(setups):
+    """env1's two inactive obstacle slots change nothing the robot meets: from the same keys the
+    padded and the thesis's unpadded env1 (``num_obstacles=1``) sample the same goal and
+    obstacle, and the hand-designed policy drives the same joint trajectory (20 control steps
+    × 4 environments, to float rounding) with the same rewards."""
+    keys = jax.random.split(jax.random.PRNGKey(3), 4)
+
+    def run(env):
+        step = jax.vmap(frozen_step(env, hand_designed_policy(env)))
+
+        def body(s, _):
+            s = step(s)
+            return s, (s.pipeline_state.qpos, s.reward)
+
+        first = jax.vmap(env.reset)(keys)
+        return first, jax.lax.scan(lambda s, x: body(s, x), first, None, length=20)[1]
+
+    padded, unpadded = setups["env1"], envs.make("three_link/env1", num_obstacles=1)
+    p0, (pq, pr) = jax.jit(lambda: run(padded))()
+    u0, (uq, ur) = jax.jit(lambda: run(unpadded))()
+    _equal(p0.info["goal"], u0.info["goal"])
+    _equal(p0.info["obstacles"].center[:, :1], u0.info["obstacles"].center)
+    assert np.all(np.asarray(p0.info["obstacles"].active) == [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(np.asarray(pq), np.asarray(uq), rtol=0, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(pr), np.asarray(ur), rtol=1e-5, atol=1e-6)
+
+
 @settings(max_examples=15, deadline=None)
 @given(r_min=st.floats(0.1, 0.4), width=st.floats(0.05, 0.3), centre=st.floats(0.0, 6.28),
-       spread=st.floats(0.1, 3.14), radius=st.floats(0.03, 0.08), seed=st.integers(0, 2**30))
+       spread=st.floats(0.1, 3.14), radius=st.floats(0.03, 0.08), seed=st.integers(0, 2**30),
+       count=st.integers(0, 3))
 def test_episodes_are_sampled_from_the_given_scene(setups, r_min, width, centre, spread,
-                                                   radius, seed):
+                                                   radius, seed, count):
     """Property: goals lie in the scene's annular sector, obstacle radii in its range and
-    obstacle centres in its annulus, for any scene parameters."""
+    obstacle centres in its annulus, the first ``obstacle_count`` slots active, for any scene
+    parameters."""
     env = setups["env3"]
     scene = {"goal_region": jnp.asarray([r_min, r_min + width, centre, spread], jnp.float32),
              "obstacle_region": jnp.asarray([0.5, 0.8], jnp.float32),
-             "obstacle_radius": jnp.asarray([radius, radius + 0.02], jnp.float32)}
+             "obstacle_radius": jnp.asarray([radius, radius + 0.02], jnp.float32),
+             "obstacle_count": jnp.asarray(count, jnp.float32)}
     state = _reset_many(env, jax.random.split(jax.random.PRNGKey(seed), 8), scene)
     goal = np.asarray(state.info["goal"], np.float64)
     r = np.linalg.norm(goal, axis=-1)
@@ -67,6 +100,8 @@ def test_episodes_are_sampled_from_the_given_scene(setups, r_min, width, centre,
                  - math.pi)
     assert np.all(off <= spread / 2 + 1e-4)
     obstacles = state.info["obstacles"]
+    np.testing.assert_array_equal(np.asarray(obstacles.active), np.tile(np.arange(3) < count,
+                                                                        (8, 1)))
     rad = np.asarray(obstacles.radius)
     assert np.all((rad >= radius - 1e-6) & (rad <= radius + 0.02 + 1e-6))
     rc = np.linalg.norm(np.asarray(obstacles.center, np.float64)[..., :2], axis=-1)
