@@ -332,7 +332,7 @@ def test_plfo_scenarios(recipes, tmp_path):
     for f in sc.REWARD_FIELDS:
         np.testing.assert_array_equal(np.asarray(getattr(back, f)), np.asarray(getattr(rd, f)))
     batch = odata.sample(rd, jax.random.PRNGKey(1), 5)
-    assert isinstance(batch, sc.RewardData) and batch.observations.shape == (5, 16)
+    assert isinstance(batch, sc.RewardData) and batch.observations.shape == (5, 26)
     odata.save(mixed, tmp_path / "mixed.npz")
     with pytest.raises(odata.DatasetFileError, match="not reward data"):
         sc.load_reward_data(tmp_path / "mixed.npz")
