@@ -9,7 +9,7 @@ import jax.numpy as jnp
 
 from envs.reaching import ReachEnv
 from envs.samplers import annulus
-from mjxrmp.config import check_choice
+from mjxrmp.config import check_choice, check_int
 from mjxrmp.geometry import Obstacles
 from mjxrmp.robots.mjcf import three_link_mjcf
 
@@ -74,7 +74,7 @@ class ThreeLinkReach(ReachEnv):
             self.goal_region = (0.275, 0.475, math.pi, math.pi / 2)
         self.obstacle_region = (0.4, 0.9) if obstacle_sampler == "thesis" else (0.4, 0.5)
         self.obstacle_radius_range = (0.05, 0.10)
-        n = 3 if num_obstacles is None else num_obstacles
+        n = 3 if num_obstacles is None else check_int(num_obstacles, "ThreeLinkReach.num_obstacles")
         #: Active obstacles of the setup's scenes (at most the slots): env1 1, env2/env3 3.
         self.obstacle_count = min(1 if setup == "env1" else 3, n)
         self.model_settings = {"obstacle_sampler": obstacle_sampler}
