@@ -152,13 +152,14 @@ def write_training_speed(results: list[dict[str, Any]], out_dir: Path) -> Path:
 
 
 def _kept(out_dir: Path, device: str, items: list[tuple[str, str]]) -> list[dict[str, Any]]:
-    """The results of an existing study in ``out_dir`` measured on ``device`` for pairs not in
-    ``items`` (so a run replaces only its own rows)."""
+    """The results of an existing study in ``out_dir`` except those of the pairs in ``items``
+    measured on ``device`` (so a run replaces only its own rows; other devices' rows stay, each
+    with its own run record)."""
     path = out_dir / "summary.json"
     if not path.exists():
         return []
     return [r for r in load_summary(path)["raw"] if "record" in r
-            and r["record"]["device"] == device and (r["env"], r["policy"]) not in items]
+            and not (r["record"]["device"] == device and (r["env"], r["policy"]) in items)]
 
 
 def run_training_speed(items: list[tuple[str, str]], seeds: list[int], iterations: int,
@@ -166,8 +167,8 @@ def run_training_speed(items: list[tuple[str, str]], seeds: list[int], iteration
                        first: bool = True, full: bool = True, warm_runs: int = 1) -> Path:
     """Measure every ``(env, policy)`` of ``items`` (:func:`measure_training_speed`; ``first``,
     ``full`` and ``warm_runs`` choose the measurements), printing a line each and writing the
-    study after each (a cut run keeps what it measured). Rows of other pairs measured earlier on
-    the same device are kept."""
+    study after each (a cut run keeps what it measured). Earlier rows are kept except those of
+    the same pairs on the same device."""
     record = run_record(command)
     results = _kept(out_dir, record["device"], items)
     path = out_dir / "summary.json"

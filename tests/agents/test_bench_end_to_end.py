@@ -1,6 +1,6 @@
 """Training timed end to end (agents.bench.end_to_end): a failing command is reported with its
-exit status, the study validates and renders, a new measurement keeps the other rows of its
-device, and (slow) a real tiny measurement runs
+exit status, the study validates and renders, a new measurement replaces only its own
+rows, and (slow) a real tiny measurement runs
 scripts/train.py five times."""
 
 from __future__ import annotations
@@ -67,12 +67,14 @@ def test_a_first_iteration_only_measurement_renders_without_the_whole_run(tmp_pa
         measure_training_speed("point2d", "nn", [0], 1, "cpu", tmp_path, warm_runs=0)
 
 
-def test_a_new_measurement_keeps_other_pairs_of_the_same_device(tmp_path):
-    """_kept returns the earlier results of the same device for pairs not measured again."""
+def test_a_new_measurement_replaces_only_its_own_rows(tmp_path):
+    """_kept drops the earlier results of the pairs measured again on the same device and keeps
+    every other row: other pairs, and the same pair measured on another device."""
     write_training_speed([_result("three_link/env3", "GPU"), _result("franka", "GPU"),
-                          _result("point2d", "CPU")], tmp_path)
+                          _result("point2d", "CPU"), _result("franka", "CPU")], tmp_path)
     kept = _kept(tmp_path, "GPU", [("franka", "nn")])
-    assert [r["env"] for r in kept] == ["three_link/env3"]
+    assert [(r["env"], r["record"]["device"]) for r in kept] == [
+        ("three_link/env3", "GPU"), ("point2d", "CPU"), ("franka", "CPU")]
     assert _kept(tmp_path / "none", "GPU", []) == []
 
 
