@@ -125,17 +125,23 @@ def _final(by: dict, env: str, policy: str) -> str:
 
 
 def headline(by: dict, wall_s: float) -> list[tuple[str, list[str]]]:
-    """``(run, cells)`` rows: each thesis statement of §6.2.4 and §6.3 next to ours."""
+    """``(run, cells)`` rows: each thesis statement of §6.2.4 and §6.3 next to ours. A row that
+    compares cells trained by different programs cites the whole grid's command where the grid
+    is complete."""
     e1, e2, e3, fr = "three_link/env1", "three_link/env2", "three_link/env3", "franka"
-    name = {(e, p): f"{e.replace('/', '-')}_{p}" for e in ENVS for p in POLICIES}
+    complete = len(by) == len(ENVS) * len(POLICIES)
+
+    def name(cell: tuple[str, str], several: bool = True) -> str:
+        return GRID if several and complete else f"{cell[0].replace('/', '-')}_{cell[1]}"
+
     rows: list[tuple[str, list[str]]] = []
     if all((e1, p) in by for p in POLICIES):
-        rows.append((name[(e1, "rmp_residual")], [
+        rows.append((name((e1, "rmp_residual")), [
             "env1 final reward, NN / NN-RESIDUAL / RMP-RESIDUAL", "all three about 400",
             " / ".join(f"{by[(e1, p)]['final_reward']:.1f}" for p in POLICIES)]))
     if all((e2, p) in by for p in ("nn", "rmp_residual")):
         nn, rmp = by[(e2, "nn")], by[(e2, "rmp_residual")]
-        rows.append((name[(e2, "nn")], [
+        rows.append((name((e2, "nn")), [
             "env2 final reward (mean safe %), NN vs RMP-RESIDUAL",
             "NN learns slightly faster with high variance and is unsafe; RMP-RESIDUAL similar "
             "reward, few collisions",
@@ -144,25 +150,25 @@ def headline(by: dict, wall_s: float) -> list[tuple[str, list[str]]]:
     if all((e3, p) in by for p in POLICIES):
         ratio = by[(e3, "rmp_residual")]["final_reward"] / max(by[(e3, "nn")]["final_reward"],
                                                                 1e-9)
-        rows.append((name[(e3, "rmp_residual")], [
+        rows.append((name((e3, "rmp_residual")), [
             "env3 final reward, RMP-RESIDUAL vs NN", "RMP-RESIDUAL improves by more than one-fold",
             f"{_final(by, e3, 'rmp_residual')} vs {_final(by, e3, 'nn')}, {ratio:.1f}×"]))
-        rows.append((name[(e3, "nn_residual")], [
+        rows.append((name((e3, "nn_residual"), several=False), [
             "env3 final reward, NN-RESIDUAL", "improves slowly, with a slope like NN's",
             _final(by, e3, "nn_residual")]))
     if all((fr, p) in by for p in ("nn_residual", "rmp_residual")):
-        rows.append((name[(fr, "rmp_residual")], [
+        rows.append((name((fr, "rmp_residual")), [
             "Franka final reward, NN-RESIDUAL vs RMP-RESIDUAL",
             "NN-RESIDUAL slightly higher after 500 iterations",
             f"{_final(by, fr, 'nn_residual')} vs {_final(by, fr, 'rmp_residual')}"]))
     rmp = [(e, by[(e, "rmp_residual")]) for e in ENVS if (e, "rmp_residual") in by]
     if rmp:
-        rows.append((name[(rmp[-1][0], "rmp_residual")], [
+        rows.append((name((rmp[-1][0], "rmp_residual")), [
             "RMP-RESIDUAL collisions / episodes, " + " / ".join(_short(e) for e, _ in rmp),
             "collisions kept low; zero on the Franka",
             " / ".join(f"{_fmt_int(r['collisions'])} of {_fmt_int(r['episodes'])}"
                        for _, r in rmp)]))
-    if len(by) == len(ENVS) * len(POLICIES):
+    if complete:
         rows.append((GRID, [
             f"the grid on one GPU: {len(ENVS)} setups × {len(POLICIES)} classes × 4 seeds × "
             "500 iterations, GPU wall time summed", "—", f"{wall_s / 60:.1f} min"]))

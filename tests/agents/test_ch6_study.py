@@ -67,6 +67,10 @@ def test_study_record_from_the_grid(grid):
     # RMP-RESIDUAL 41 (seeds 40 and 42) over NN 11 (10 and 12)
     assert cells["env3 final reward, RMP-RESIDUAL vs NN"] == "41.0 ± 1.0 vs 11.0 ± 1.0, 3.7×"
     assert any(v == "24.0 min" for v in cells.values())
+    cited = {row["cells"][0]: row["run"] for row in study["headline"]["rows"]}
+    # a row comparing cells of different programs cites the whole grid's command
+    assert cited["env3 final reward, RMP-RESIDUAL vs NN"] == "grid"
+    assert cited["env3 final reward, NN-RESIDUAL"] == "three_link-env3_nn_residual"
     assert not any("30-minute target" in d for d in study["deviations"])
     by = {(r["env"], r["policy"]): r for r in grid[2]["rows"]}
     assert ("The grid takes 35.0 min of GPU time (NVIDIA H200), above the 30-minute target."
