@@ -53,9 +53,14 @@ COLORS = {"nn": "0.35", "nn_residual": "tab:red", "rmp_residual": "tab:blue",
           "rmp_residual_env": "tab:green", "hand_designed": "tab:orange"}
 
 
+def run_name(env: str, policy: str) -> str:
+    """``<env with / → ->_<policy>``: a cell's run directory name and study run key."""
+    return f"{env.replace('/', '-')}_{policy}"
+
+
 def run_dir(runs: str, env: str, policy: str) -> str:
-    """``<runs>/<env with / → ->_<policy>``."""
-    return os.path.join(runs, f"{env.replace('/', '-')}_{policy}")
+    """``<runs>/<run_name(env, policy)>``."""
+    return os.path.join(runs, run_name(env, policy))
 
 
 def _segment(start: int | None, wall: float, **fields: Any) -> dict[str, Any]:
@@ -316,4 +321,5 @@ def plot_all(runs_dir: str, figures: str, smooth: int,
 
 
 __all__ = ["COLORS", "ENVS", "LABELS", "POLICIES", "THREE_LINK", "load_runs", "packed_cells",
-           "packed_groups", "plot_all", "plot_figures", "run_dir", "summary_row", "train_all"]
+           "packed_groups", "plot_all", "plot_figures", "run_dir", "run_name", "summary_row",
+           "train_all"]

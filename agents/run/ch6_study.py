@@ -20,7 +20,16 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from agents.run.ch6 import ENVS, LABELS, POLICIES, plot_all, run_dir, summary_row, train_all
+from agents.run.ch6 import (
+    ENVS,
+    LABELS,
+    POLICIES,
+    plot_all,
+    run_dir,
+    run_name,
+    summary_row,
+    train_all,
+)
 from agents.run.logs import read_csv
 from envs.evaluate import evaluate
 from envs.registry import make
@@ -131,17 +140,17 @@ def headline(by: dict, wall_s: float) -> list[tuple[str, list[str]]]:
     e1, e2, e3, fr = "three_link/env1", "three_link/env2", "three_link/env3", "franka"
     complete = len(by) == len(ENVS) * len(POLICIES)
 
-    def name(cell: tuple[str, str], several: bool = True) -> str:
-        return GRID if several and complete else f"{cell[0].replace('/', '-')}_{cell[1]}"
+    def cited(env: str, policy: str) -> str:  # a row over cells of several programs
+        return GRID if complete else run_name(env, policy)
 
     rows: list[tuple[str, list[str]]] = []
     if all((e1, p) in by for p in POLICIES):
-        rows.append((name((e1, "rmp_residual")), [
+        rows.append((cited(e1, "rmp_residual"), [
             "env1 final reward, NN / NN-RESIDUAL / RMP-RESIDUAL", "all three about 400",
             " / ".join(f"{by[(e1, p)]['final_reward']:.1f}" for p in POLICIES)]))
     if all((e2, p) in by for p in ("nn", "rmp_residual")):
         nn, rmp = by[(e2, "nn")], by[(e2, "rmp_residual")]
-        rows.append((name((e2, "nn")), [
+        rows.append((cited(e2, "nn"), [
             "env2 final reward (mean safe %), NN vs RMP-RESIDUAL",
             "NN learns slightly faster with high variance and is unsafe; RMP-RESIDUAL similar "
             "reward, few collisions",
@@ -150,20 +159,20 @@ def headline(by: dict, wall_s: float) -> list[tuple[str, list[str]]]:
     if all((e3, p) in by for p in POLICIES):
         ratio = by[(e3, "rmp_residual")]["final_reward"] / max(by[(e3, "nn")]["final_reward"],
                                                                 1e-9)
-        rows.append((name((e3, "rmp_residual")), [
+        rows.append((cited(e3, "rmp_residual"), [
             "env3 final reward, RMP-RESIDUAL vs NN", "RMP-RESIDUAL improves by more than one-fold",
             f"{_final(by, e3, 'rmp_residual')} vs {_final(by, e3, 'nn')}, {ratio:.1f}×"]))
-        rows.append((name((e3, "nn_residual"), several=False), [
+        rows.append((run_name(e3, "nn_residual"), [
             "env3 final reward, NN-RESIDUAL", "improves slowly, with a slope like NN's",
             _final(by, e3, "nn_residual")]))
     if all((fr, p) in by for p in ("nn_residual", "rmp_residual")):
-        rows.append((name((fr, "rmp_residual")), [
+        rows.append((cited(fr, "rmp_residual"), [
             "Franka final reward, NN-RESIDUAL vs RMP-RESIDUAL",
             "NN-RESIDUAL slightly higher after 500 iterations",
             f"{_final(by, fr, 'nn_residual')} vs {_final(by, fr, 'rmp_residual')}"]))
     rmp = [(e, by[(e, "rmp_residual")]) for e in ENVS if (e, "rmp_residual") in by]
     if rmp:
-        rows.append((name((rmp[-1][0], "rmp_residual")), [
+        rows.append((cited(rmp[-1][0], "rmp_residual"), [
             "RMP-RESIDUAL collisions / episodes, " + " / ".join(_short(e) for e, _ in rmp),
             "collisions kept low; zero on the Franka",
             " / ".join(f"{_fmt_int(r['collisions'])} of {_fmt_int(r['episodes'])}"
@@ -228,7 +237,7 @@ def write_ch6_study(figures: str, runs: str, summary: dict[str, Any]) -> Path:
     by = {(r["env"], r["policy"]): r for r in summary["rows"]}
     baselines = load_baselines(runs)
     wall = grid_wall_s(runs)
-    records = {f"{e.replace('/', '-')}_{p}": _record(runs, e, p) for e, p in sorted(by)}
+    records = {run_name(e, p): _record(runs, e, p) for e, p in sorted(by)}
     devices = sorted({r["device"] for r in records.values()} - {"unknown"})
     if len(by) == len(ENVS) * len(POLICIES):
         newest = max(records.values(), key=lambda r: r["date"])
@@ -236,7 +245,7 @@ def write_ch6_study(figures: str, runs: str, summary: dict[str, Any]) -> Path:
                                                          policy=" ".join(POLICIES)),
                          "device": ", ".join(devices), "versions": newest["versions"],
                          "date": newest["date"]}
-    records.update({f"{e.replace('/', '-')}_hand_designed": b["record"]
+    records.update({run_name(e, "hand_designed"): b["record"]
                     for e, b in baselines.items()})
     columns, rows = main_table(summary["rows"], baselines, runs)
     tables = {"main": {"columns": columns, "rows": rows}}
