@@ -60,13 +60,17 @@ def constraint_stages_on(mj_model: mujoco.MjModel) -> bool:
     return not (int(mj_model.opt.disableflags) & _mask())
 
 
+def gpu_default(value: bool | None) -> bool:
+    """``value``, or where it is None whether JAX's default backend is a GPU: the default of the
+    launch-level options that pay on a GPU and cost compile time on a CPU (§5.9, §5.10)."""
+    return jax.default_backend() == "gpu" if value is None else value
+
+
 def substep_unroll(substeps: int, unroll: bool | None) -> int:
     """The ``lax.scan`` unroll of ``substeps`` physics substeps: all of them when ``unroll``
     (default None: when JAX's default backend is a GPU), else 1. Unrolling changes neither the
     operations nor their order, only how they are launched (docs/design.md §5.9)."""
-    if unroll is None:
-        unroll = jax.default_backend() == "gpu"
-    return substeps if unroll else 1
+    return substeps if gpu_default(unroll) else 1
 
 
 @contextlib.contextmanager

@@ -35,8 +35,8 @@ the models have no contacts or equality constraints and the position targets are
 joint ranges, so the solver has nothing to do that changes the motion, but under MJX it costs up
 to a third of a control step. ``constraint_stages=True`` simulates the MJCF as generated
 (joint-limit constraints included). On a GPU the substeps of a control step are written out
-rather than looped (``unroll_substeps``, default: on a GPU only; §5.9); ``written_out_solves``
-writes out MJX's mass-matrix factorisations and solves (§5.10; off by default).
+rather than looped (``unroll_substeps``, §5.9) and MJX's mass-matrix factorisations and solves
+are written out (``written_out_solves``, §5.10); both default to on a GPU only.
 
 **Reward** per substep :func:`envs.base.reach_reward` with ``τ = data.qfrc_actuator`` as the
 effort (``exp(−½‖x−g‖²/σ²) − Σ_i max(0, 1 − d_i/δ) − λ‖τ‖²`` clipped to ``[−5, 1]``; ``d_i`` the
@@ -75,7 +75,7 @@ from envs.base import (
     reach_reward,
     sample_first_valid,
 )
-from envs.physics import set_constraint_stages, substep_unroll, written_out_mass_solves
+from envs.physics import gpu_default, set_constraint_stages, substep_unroll, written_out_mass_solves
 from mjxrmp.config import check_bool, check_choice, check_float, check_int
 from mjxrmp.geometry import Obstacles
 from mjxrmp.leaves.hand_designed import safe_norm
@@ -116,7 +116,7 @@ class ReachEnv(Env):
         measured_velocity: bool = False,
         constraint_stages: bool = False,
         unroll_substeps: bool | None = None,
-        written_out_solves: bool = False,
+        written_out_solves: bool | None = None,
     ):
         settings = {k: v for k, v in locals().items() if k != "self"}  # the arguments only
         name = type(self).__name__
@@ -132,10 +132,10 @@ class ReachEnv(Env):
         self.measured_velocity = check_bool(measured_velocity, f"{name}.measured_velocity")
         self.robot: Robot = get(self.robot_name)
         self.constraint_stages = check_bool(constraint_stages, f"{name}.constraint_stages")
-        if unroll_substeps is not None:
-            check_bool(unroll_substeps, f"{name}.unroll_substeps")
-        self.substep_unroll = substep_unroll(self.substeps, unroll_substeps)
-        self.written_out_solves = check_bool(written_out_solves, f"{name}.written_out_solves")
+        self.substep_unroll = substep_unroll(self.substeps, check_bool(
+            unroll_substeps, f"{name}.unroll_substeps", allow_none=True))
+        self.written_out_solves = gpu_default(check_bool(
+            written_out_solves, f"{name}.written_out_solves", allow_none=True))
         self.mj_model = set_constraint_stages(mujoco.MjModel.from_xml_string(xml),
                                               self.constraint_stages)
         # this process's first device: in a multi-process run jax.devices()[0] is process 0's

@@ -150,10 +150,13 @@ def check_fraction(value: Any, name: str, *, closed: bool = False,
     return float(value)
 
 
-def check_bool(value: Any, name: str) -> bool:
-    """``value`` if it is a ``bool``."""
+def check_bool(value: Any, name: str, *, allow_none: bool = False) -> bool | None:
+    """``value`` if it is a ``bool`` (``None`` passes with ``allow_none``)."""
+    if value is None and allow_none:
+        return None
     if not isinstance(value, bool | np.bool_):
-        raise ValueError(f"{name} must be a bool, got {value!r}")
+        raise ValueError(f"{name} must be a bool{' or None' if allow_none else ''}, "
+                         f"got {value!r}")
     return bool(value)
 
 

@@ -4,7 +4,8 @@ alone at one batch size, against the physics floor (docs/reports/performance.md)
 Phases, each a compiled ``lax.scan`` over ``steps`` control steps of ``batch`` environments and
 reported per control step:
 
-* ``physics`` — raw ``mjx.step`` × ``substeps`` with the servo targets held, on the model as
+* ``physics`` — raw ``mjx.step`` × ``substeps`` with the servo targets held (substeps unrolled
+  and mass-matrix solves written out where the environment does so), on the model as
   generated (:data:`PHYSICS_VARIANTS` ``as_is``), with the constraint, contact, equality,
   friction-loss and limit stages disabled (``contact_free``), and the same with one solver
   iteration (``contact_free_1iter``): the floor the environment is compared with;
@@ -18,7 +19,10 @@ reported per control step:
   :data:`agents.ppo.rollout.POOL_BLOCK` steps, as the PPO rollout does;
 * ``reset`` — one full ``reset`` of every environment (scene sampling with rejection);
 * ``observe`` — geometry, observation and goal metrics alone;
-* ``rmp2_policy`` — the hand-designed RMP² policy's forward alone.
+* ``rmp2_policy`` — the hand-designed RMP² policy's forward alone;
+* ``ppo_rollout`` — the PPO trainer's rollout as training runs it (:data:`PPO_POLICY`, the
+  thesis preset, the batch split over :data:`PPO_SEEDS` vmapped seeds): environment step with
+  auto-reset, the policy's forward (RMP² included), sampling and the stored transitions.
 
 :func:`limit_excursions` rolls the hand-designed policy out with the model as generated and with
 the contact-free one from the same scenes: how far joint limits are exceeded under each and how
@@ -40,12 +44,17 @@ from mujoco import mjx
 
 import envs
 from agents.ppo.rollout import POOL_DEPTH, pool_block
+from agents.run.program import SEED_AXIS, build, seed_keys
+from agents.run.spec import RunSpec, preset
 from envs.evaluate import hand_designed_policy
-from envs.physics import set_constraint_stages
+from envs.physics import set_constraint_stages, written_out_mass_solves
 from envs.wrappers import CONDITIONAL_RESET_BACKENDS, wrap
 
 #: The MJX model variants timed as the physics floor.
 PHYSICS_VARIANTS = ("as_is", "contact_free", "contact_free_1iter")
+#: The policy kind and the vmapped seeds of the ``ppo_rollout`` phase (the thesis runs: 4 seeds
+#: × 128 environments = 512).
+PPO_POLICY, PPO_SEEDS = "rmp_residual", 4
 
 def physics_model(mj_model: mujoco.MjModel, variant: str) -> mjx.Model:
     """The MJX model of ``mj_model`` in :data:`PHYSICS_VARIANTS` ``variant``: ``as_is`` with
@@ -113,10 +122,13 @@ def phase_programs(env_name: str, batch: int, steps: int, key: jax.Array
     out: dict[str, Callable[[], Any]] = {}
     for variant in PHYSICS_VARIANTS:
         model = physics_model(base.mj_model, variant)
-        # the substeps looped as the environment loops them, so loop overheads match
-        sub = jax.vmap(lambda d, m=model: jax.lax.scan(
-            lambda d, _: (mjx.step(m, d), None), d, None, length=base.substeps,
-            unroll=base.substep_unroll)[0])
+        # the substeps looped and the mass-matrix solves traced as the environment does them
+        def substeps(d: mjx.Data, m: mjx.Model = model) -> mjx.Data:
+            with written_out_mass_solves(base.written_out_solves):
+                return jax.lax.scan(lambda d, _: (mjx.step(m, d), None), d, None,
+                                    length=base.substeps, unroll=base.substep_unroll)[0]
+
+        sub = jax.vmap(substeps)
         out[f"physics_{variant}"] = functools.partial(_scan(sub, steps),
                                                       _data_like(model, data, batch))
     raw = _scan(lambda s: jax.vmap(base.step)(s, zero), steps)
@@ -148,7 +160,30 @@ def phase_programs(env_name: str, batch: int, steps: int, key: jax.Array
 
     out["observe"] = _fed_back(jax.vmap(observe), state, steps)
     out["rmp2_policy"] = _fed_back(jax.vmap(hand_designed_policy(base)), state, steps)
+    out["ppo_rollout"] = ppo_rollout(env_name, batch, steps)
     return out
+
+
+def ppo_rollout(env_name: str, batch: int, steps: int) -> Callable[[], Any]:
+    """A call of ``steps`` control steps of the PPO trainer's rollout (:data:`PPO_POLICY`,
+    thesis preset) over ``batch`` environments, split over :data:`PPO_SEEDS` vmapped seeds
+    (one seed where ``batch`` does not split), from the run's initial state; the program is
+    built at the first call."""
+    seeds = PPO_SEEDS if batch % PPO_SEEDS == 0 else 1
+    # the rollout does not depend on the update's settings: one minibatch fits any batch
+    spec = RunSpec(env=env_name, policy=PPO_POLICY, seeds=tuple(range(seeds)),
+                   ppo=preset("thesis", num_envs=batch // seeds, rollout_length=steps,
+                              num_minibatches=1))
+
+    @functools.cache
+    def program() -> Callable[[], Any]:
+        prog = build(spec)
+        state = prog.initial_state(seed_keys(spec.seeds))
+        keys = jax.vmap(jax.random.PRNGKey)(jnp.arange(seeds))
+        rollout = jax.jit(jax.vmap(prog.trainer.rollout, axis_name=SEED_AXIS))
+        return functools.partial(rollout, state, keys)
+
+    return lambda: program()()
 
 
 def limit_excursions(env_name: str, episodes: int, steps: int, key: jax.Array,
@@ -202,5 +237,5 @@ def limit_excursions(env_name: str, episodes: int, steps: int, key: jax.Array,
             "repeat_max_abs_dq": float(jnp.max(jnp.abs(q_a - q_r)))}
 
 
-__all__ = ["PHYSICS_VARIANTS", "limit_excursions", "phase_programs",
-           "physics_model", "time_phase"]
+__all__ = ["PHYSICS_VARIANTS", "PPO_POLICY", "PPO_SEEDS", "limit_excursions", "phase_programs",
+           "physics_model", "ppo_rollout", "time_phase"]

@@ -22,13 +22,13 @@ from typing import Any
 
 import jax
 
-from agents.bench.phases import limit_excursions, phase_programs, time_phase
+from agents.bench.phases import PPO_POLICY, PPO_SEEDS, limit_excursions, phase_programs, time_phase
 from agents.run.loading import deterministic_policy, env_policy, load_run
 from mjxrmp.results.summary import run_record, write_study
 
 #: Phases whose kernels are counted (the rest are timed only).
 TRACED = ("physics_as_is", "physics_contact_free", "env_step_raw", "env_step",
-          "env_step_reset_always", "env_step_pooled")
+          "env_step_reset_always", "env_step_pooled", "ppo_rollout")
 
 
 def _gpu_kernels(trace_path: str) -> tuple[int, float]:
@@ -120,22 +120,25 @@ def _rows(env_name: str, r: dict[str, Any]) -> list[list[Any]]:
 
 
 def write_profile(results: dict[str, dict[str, Any]], batch: int, out_dir: Path,
-                  command: str) -> Path:
-    """``out_dir/summary.json`` and ``table.csv`` of the ``performance`` study."""
-    record = run_record(command)
+                  command: str, record: dict[str, Any] | None = None) -> Path:
+    """``out_dir/summary.json`` and ``table.csv`` of the ``performance`` study; ``record``: the
+    run record of the measurement (default: ``command`` run here, now), given when a study is
+    written again from an earlier run's ``raw`` results."""
+    record = record if record is not None else run_record(command)
     rows = [row for env_name, r in results.items() for row in _rows(env_name, r)]
     headline = []
     for env_name, r in results.items():
         p = r["phases"]
         headline.append([
             f"{env_name}, {batch} environments: contact-free physics floor / physics as "
-            "generated / environment step / training step (reset computed when an episode "
-            "ended) / with a reset computed at every step / with reset pools / reset, ms per "
-            "control step",
+            "generated / environment step / training step (auto-reset: on a CPU computed where "
+            "an episode ended, on a GPU at every step) / on a CPU with a reset at every step / "
+            f"with reset pools / reset / PPO rollout ({PPO_POLICY}, {PPO_SEEDS} seeds; policy "
+            "forward and sampling included), ms per control step",
             "—",
             " / ".join(_ms(p, n) for n in ("physics_contact_free", "physics_as_is",
                                            "env_step_raw", "env_step", "env_step_reset_always",
-                                           "env_step_pooled", "reset"))])
+                                           "env_step_pooled", "reset", "ppo_rollout"))])
         for who, lim in (r["limits"] or {}).items():
             policy = ("hand-designed policy" if who == "hand_designed"
                       else f"trained policy ({lim['run']})")

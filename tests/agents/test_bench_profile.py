@@ -39,7 +39,7 @@ def test_contact_free_model_disables_the_constraint_stages():
 #: Every phase :func:`profile_env` times by default.
 ALL_PHASES = {f"physics_{v}" for v in PHYSICS_VARIANTS} | {
     "env_step_raw", "env_step", "env_step_reset_always", "env_step_pooled", "reset", "observe",
-    "rmp2_policy"}
+    "rmp2_policy", "ppo_rollout"}
 
 
 def _profile_is_written_as_a_study(tmp_path, phases: set[str] | None) -> None:
@@ -58,13 +58,20 @@ def _profile_is_written_as_a_study(tmp_path, phases: set[str] | None) -> None:
     summary = load_summary(path)
     assert len(summary["tables"]["phases"]["rows"]) == len(names)
     assert (tmp_path / "table.csv").read_text().startswith("environment,phase")
+    # written again from its raw results with its own run record (another device, another day)
+    record = {**next(iter(summary["runs"].values())), "device": "NVIDIA H200",
+              "date": "2026-11-28"}
+    again = load_summary(write_profile(summary["raw"], 2, tmp_path / "again",
+                                       record["command"], record=record))
+    assert list(again["runs"].values()) == [record]
+    assert again["tables"] == summary["tables"]
 
 
 def test_profile_of_a_subset_of_phases_is_written_as_a_study(tmp_path):
     """The quick check of :func:`test_profile_of_every_phase_is_written_as_a_study`: the floor
     and three phases (the other phases' programs are never compiled)."""
     _profile_is_written_as_a_study(tmp_path, {"physics_contact_free", "reset", "observe",
-                                              "rmp2_policy"})
+                                              "rmp2_policy", "ppo_rollout"})
 
 
 @pytest.mark.slow

@@ -72,8 +72,9 @@ def test_trajectories_with_and_without_the_constraint_pipeline_agree(name, tol):
     """Random actions, 40 control steps × 4 environments: the joint positions agree exactly for
     the 3-link (no limited joints) and to 1e-5 rad for the Franka (float rounding of the
     solver's unconstrained pass; no limit is touched)."""
-    off = _rollout_of(name, unroll_substeps=False)
-    on = _rollout_of(name, constraint_stages=True, unroll_substeps=False)
+    off = _rollout_of(name, written_out_solves=False, unroll_substeps=False)
+    on = _rollout_of(name, constraint_stages=True, written_out_solves=False,
+                     unroll_substeps=False)
     assert np.isfinite(off).all()
     np.testing.assert_allclose(off, on, rtol=0, atol=tol)
 
@@ -87,8 +88,9 @@ def test_unrolled_substeps_give_the_same_trajectories(name):
     assert looped.substep_unroll == (looped.substeps if jax.default_backend() == "gpu" else 1)
     written = envs.make(name, unroll_substeps=True)
     assert written.substep_unroll == written.substeps
-    np.testing.assert_allclose(_rollout_of(name, unroll_substeps=True),
-                               _rollout_of(name, unroll_substeps=False), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(_rollout_of(name, written_out_solves=False, unroll_substeps=True),
+                               _rollout_of(name, written_out_solves=False, unroll_substeps=False),
+                               rtol=0, atol=1e-6)
     with pytest.raises(ValueError, match="unroll_substeps"):
         envs.make(name, unroll_substeps=1)
 
@@ -104,9 +106,11 @@ def _primitives(env) -> set[str]:
 def test_written_out_mass_solves_leave_no_library_factorisation(name):
     """MJX's mass-matrix factorisations and solves written out (``written_out_solves=True``,
     docs/design.md §5.10) leave no library Cholesky or triangular solve in the control step;
-    off is the default; the context restores JAX's functions, also after an error."""
+    the default is on a GPU only; the context restores JAX's functions, also after an error."""
     assert _primitives(envs.make(name, written_out_solves=True)) == set()
-    assert _primitives(envs.make(name)) == {"cholesky", "triangular_solve"}
+    assert _primitives(envs.make(name, written_out_solves=False)) == {"cholesky",
+                                                                      "triangular_solve"}
+    assert envs.make(name).written_out_solves == (jax.default_backend() == "gpu")
     library = jax.scipy.linalg.cho_factor, jax.scipy.linalg.cho_solve
     with pytest.raises(RuntimeError, match="inside"), written_out_mass_solves():
         assert jax.scipy.linalg.cho_factor is linalg.cho_factor
@@ -114,19 +118,17 @@ def test_written_out_mass_solves_leave_no_library_factorisation(name):
     with written_out_mass_solves(False):
         assert (jax.scipy.linalg.cho_factor, jax.scipy.linalg.cho_solve) == library
     assert (jax.scipy.linalg.cho_factor, jax.scipy.linalg.cho_solve) == library
-    with pytest.raises(ValueError, match="written_out_solves"):
+    with pytest.raises(ValueError, match="written_out_solves must be a bool or None"):
         envs.make(name, written_out_solves=1)
 
 
-# the Franka's written-out rollout is one more 50-second compile on 2 cores; the option is off
-# by default and changes nothing on a GPU (docs/reports/performance.md), so it runs with -m slow
-@pytest.mark.parametrize(
-    "name", ["three_link/env3", pytest.param("franka", marks=pytest.mark.slow)])
+@pytest.mark.parametrize("name", ["three_link/env3", "franka"])
 def test_written_out_mass_solves_give_the_same_trajectories(name):
-    """With MJX's mass-matrix solves written out the joint trajectories equal the library's
-    (40 random-action control steps × 4 environments) to float rounding."""
+    """With MJX's mass-matrix solves written out (the GPU default) the joint trajectories equal
+    the library's (40 random-action control steps × 4 environments) to float rounding."""
     np.testing.assert_allclose(_rollout_of(name, written_out_solves=True, unroll_substeps=False),
-                               _rollout_of(name, unroll_substeps=False), rtol=0, atol=1e-6)
+                               _rollout_of(name, written_out_solves=False, unroll_substeps=False),
+                               rtol=0, atol=1e-6)
 
 
 def test_limit_check_takes_any_policy():
