@@ -69,7 +69,8 @@ def _profile_is_written_as_a_study(tmp_path, phases: set[str] | None) -> None:
 
 def test_profile_of_a_subset_of_phases_is_written_as_a_study(tmp_path):
     """The quick check of :func:`test_profile_of_every_phase_is_written_as_a_study`: the floor
-    and three phases (the other phases' programs are never compiled)."""
+    and four phases, the PPO rollout among them (the other phases' programs are never
+    compiled)."""
     _profile_is_written_as_a_study(tmp_path, {"physics_contact_free", "reset", "observe",
                                               "rmp2_policy", "ppo_rollout"})
 
