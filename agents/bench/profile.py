@@ -24,7 +24,7 @@ import jax
 
 from agents.bench.phases import PPO_POLICY, PPO_SEEDS, limit_excursions, phase_programs, time_phase
 from agents.run.loading import deterministic_policy, env_policy, load_run
-from mjxrmp.results.summary import run_record, write_study
+from mjxrmp.results.summary import load_summary, run_record, write_study
 
 #: Phases whose kernels are counted (the rest are timed only).
 TRACED = ("physics_as_is", "physics_contact_free", "env_step_raw", "env_step",
@@ -99,7 +99,8 @@ def profile_env(env_name: str, batch: int, steps: int, repeats: int, episodes: i
     kernels = {name: kernel_stats(programs[name], steps) for name in TRACED if name in programs}
     limits = (limit_checks(env_name, episodes, horizon, k_limit, trained_run) if episodes
               else None)
-    return {"phases": timed, "kernels": kernels, "limits": limits}
+    return {"batch": batch, "steps": steps, "repeats": repeats, "phases": timed,
+            "kernels": kernels, "limits": limits}
 
 
 def _ms(phases: dict, name: str) -> str:
@@ -119,18 +120,22 @@ def _rows(env_name: str, r: dict[str, Any]) -> list[list[Any]]:
     return rows
 
 
-def write_profile(results: dict[str, dict[str, Any]], batch: int, out_dir: Path,
-                  command: str, record: dict[str, Any] | None = None) -> Path:
-    """``out_dir/summary.json`` and ``table.csv`` of the ``performance`` study; ``record``: the
-    run record of the measurement (default: ``command`` run here, now), given when a study is
-    written again from an earlier run's ``raw`` results."""
-    record = record if record is not None else run_record(command)
+def _run_name(env_name: str, record: dict[str, Any]) -> str:
+    """The study's name of one environment's measurement: ``profile_<env>_<device>``."""
+    slug = "".join(c if c.isalnum() else "_" for c in f"{env_name}_{record['device']}")
+    return f"profile_{slug.lower()}"
+
+
+def write_profile(results: dict[str, dict[str, Any]], out_dir: Path) -> Path:
+    """``out_dir/summary.json`` and ``table.csv`` of the ``performance`` study from the results
+    of :func:`profile_env` by environment, each carrying its own run record (``record``:
+    :func:`run_record`), so environments measured by different commands share one study."""
     rows = [row for env_name, r in results.items() for row in _rows(env_name, r)]
     headline = []
     for env_name, r in results.items():
-        p = r["phases"]
-        headline.append([
-            f"{env_name}, {batch} environments: contact-free physics floor / physics as "
+        p, run = r["phases"], _run_name(env_name, r["record"])
+        headline.append((run, [
+            f"{env_name}, {r['batch']} environments: contact-free physics floor / physics as "
             "generated / environment step / training step (auto-reset: on a CPU computed where "
             "an episode ended, on a GPU at every step) / on a CPU with a reset at every step / "
             f"with reset pools / reset / PPO rollout ({PPO_POLICY}, {PPO_SEEDS} seeds; policy "
@@ -138,22 +143,32 @@ def write_profile(results: dict[str, dict[str, Any]], batch: int, out_dir: Path,
             "—",
             " / ".join(_ms(p, n) for n in ("physics_contact_free", "physics_as_is",
                                            "env_step_raw", "env_step", "env_step_reset_always",
-                                           "env_step_pooled", "reset", "ppo_rollout"))])
+                                           "env_step_pooled", "reset", "ppo_rollout"))]))
         for who, lim in (r["limits"] or {}).items():
             policy = ("hand-designed policy" if who == "hand_designed"
                       else f"trained policy ({lim['run']})")
-            headline.append([
+            headline.append((run, [
                 f"{env_name}: {policy}, {lim['episodes']} episodes × {lim['steps']} steps, "
                 "largest joint-limit excess with / without the constraint stages (rad); largest "
                 "joint drift between the two, and between two runs with them (rad)",
                 "—", f"{lim['max_excess_as_is']:.2g} / {lim['max_excess_contact_free']:.2g}; "
-                     f"{lim['max_abs_dq']:.3g}, {lim['repeat_max_abs_dq']:.3g}"])
+                     f"{lim['max_abs_dq']:.3g}, {lim['repeat_max_abs_dq']:.3g}"]))
     columns = ["environment", "phase", "ms per control step", "× floor", "kernels per step"]
     head = {"study": "performance", "title": "Control-step profile",
             "report": "docs/reports/performance.md"}
-    run = "profile_" + record["device"].split()[0].lower().replace("(", "")
-    return write_study(out_dir, head, {run: record}, [(run, cells) for cells in headline],
-                       ("phases", columns, rows), results)
+    runs = {_run_name(env_name, r["record"]): r["record"] for env_name, r in results.items()}
+    return write_study(out_dir, head, runs, headline, ("phases", columns, rows), results)
+
+
+def kept_profiles(out_dir: Path, env_names: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """The results of an existing ``performance`` study in ``out_dir`` for environments not in
+    ``env_names`` (so a run replaces only its own environments' rows, and the others keep their
+    own run records); empty without a study."""
+    path = Path(out_dir) / "summary.json"
+    if not path.exists():
+        return {}
+    return {env_name: r for env_name, r in load_summary(path)["raw"].items()
+            if env_name not in env_names and "record" in r}
 
 
 def run_profile(env_names: list[str], batch: int, steps: int, repeats: int, episodes: int,
@@ -161,21 +176,25 @@ def run_profile(env_names: list[str], batch: int, steps: int, repeats: int, epis
                 trained_runs: dict[str, str] | None = None) -> Path:
     """Profile every environment of ``env_names`` (:func:`profile_env`; ``trained_runs`` maps an
     environment to a training run whose policy is limit-checked too), printing a line per
-    environment, and write the study (:func:`write_profile`) after each environment."""
+    environment, and write the study (:func:`write_profile`) after each environment, keeping
+    the other environments of an earlier study in ``out_dir`` (:func:`kept_profiles`)."""
     trained_runs = trained_runs or {}
     unknown = sorted(set(trained_runs) - set(env_names))
     if unknown:
         raise ValueError(f"trained_runs names environments {unknown} that are not profiled "
                          f"({env_names})")
+    record = run_record(command)
     key = jax.random.PRNGKey(seed)
-    results = collections.OrderedDict()
+    results = collections.OrderedDict(kept_profiles(out_dir, env_names))
     for i, env_name in enumerate(env_names):
-        results[env_name] = profile_env(env_name, batch, steps, repeats, episodes, horizon,
-                                        jax.random.fold_in(key, i), trained_runs.get(env_name))
+        results[env_name] = {**profile_env(env_name, batch, steps, repeats, episodes, horizon,
+                                           jax.random.fold_in(key, i),
+                                           trained_runs.get(env_name)), "record": record}
         print(env_name, {k: _ms(results[env_name]["phases"], k)
                          for k in results[env_name]["phases"]}, flush=True)
-        path = write_profile(dict(results), batch, out_dir, command)  # a cut run keeps these
+        path = write_profile(dict(results), out_dir)  # a cut run keeps these
     return path
 
 
-__all__ = ["TRACED", "kernel_stats", "limit_checks", "profile_env", "run_profile", "write_profile"]
+__all__ = ["TRACED", "kept_profiles", "kernel_stats", "limit_checks", "profile_env", "run_profile",
+           "write_profile"]

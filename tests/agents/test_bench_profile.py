@@ -14,8 +14,8 @@ import pytest
 
 import envs
 from agents.bench.phases import PHYSICS_VARIANTS, physics_model
-from agents.bench.profile import _gpu_kernels, profile_env, write_profile
-from mjxrmp.results.summary import load_summary
+from agents.bench.profile import _gpu_kernels, kept_profiles, profile_env, write_profile
+from mjxrmp.results.summary import load_summary, run_record
 
 
 def test_contact_free_model_disables_the_constraint_stages():
@@ -54,17 +54,23 @@ def _profile_is_written_as_a_study(tmp_path, phases: set[str] | None) -> None:
     assert all(k is None for k in r["kernels"].values())
     lim = r["limits"]["hand_designed"]
     assert lim["max_excess_as_is"] >= 0 and np.isfinite(lim["max_abs_dq"])
-    path = write_profile({"three_link/env3": r}, 2, tmp_path, "python scripts/profile_step.py")
+    record = run_record("python scripts/profile_step.py", device="CPU (test)")
+    path = write_profile({"three_link/env3": {**r, "record": record}}, tmp_path)
     summary = load_summary(path)
     assert len(summary["tables"]["phases"]["rows"]) == len(names)
+    assert summary["headline"]["rows"][0]["cells"][0].startswith("three_link/env3, 2 environ")
     assert (tmp_path / "table.csv").read_text().startswith("environment,phase")
-    # written again from its raw results with its own run record (another device, another day)
-    record = {**next(iter(summary["runs"].values())), "device": "NVIDIA H200",
-              "date": "2026-11-28"}
-    again = load_summary(write_profile(summary["raw"], 2, tmp_path / "again",
-                                       record["command"], record=record))
-    assert list(again["runs"].values()) == [record]
-    assert again["tables"] == summary["tables"]
+    # another environment measured by another command on another device joins the study,
+    # each keeping its own run record; a re-run of one environment keeps only the other
+    other = {**next(iter(summary["runs"].values())), "device": "NVIDIA H200",
+             "command": "python scripts/profile_step.py --envs franka", "date": "2026-11-28"}
+    both = {**summary["raw"], "franka": {**summary["raw"]["three_link/env3"], "record": other}}
+    joined = load_summary(write_profile(both, tmp_path))
+    assert sorted(joined["runs"].values(), key=str) == sorted([record, other], key=str)
+    assert len(joined["tables"]["phases"]["rows"]) == 2 * len(names)
+    assert list(kept_profiles(tmp_path, ["three_link/env3"])) == ["franka"]
+    assert kept_profiles(tmp_path, ["three_link/env3"])["franka"]["record"] == other
+    assert kept_profiles(tmp_path / "none", ["franka"]) == {}
 
 
 def test_profile_of_a_subset_of_phases_is_written_as_a_study(tmp_path):
