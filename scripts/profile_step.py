@@ -4,8 +4,9 @@ constraint stages (the hand-designed policy and, with ``--trained``, a trained o
 
 Writes ``results/performance/summary.json`` and ``table.csv`` (the ``performance`` study of
 ``BENCHMARKS.md``; findings in ``docs/reports/performance.md``), keeping the environments of an
-earlier study there that this command does not profile, each with its own command. The measurements live in
-:mod:`agents.bench.profile`. Meant for a GPU; on a CPU the kernel counts are left out.
+earlier study there that this command does not profile, each with its own command. The
+measurements live in :mod:`agents.bench.profile`. Meant for a GPU; on a CPU the kernel counts
+are left out.
 
 Examples::
 
