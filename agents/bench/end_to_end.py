@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from mjxrmp.config import check_int
-from mjxrmp.results.summary import load_summary, run_record, write_study
+from mjxrmp.results.summary import earlier_raw, run_record, slug, write_study
 
 ROOT = Path(__file__).resolve().parents[2]
 #: The line :func:`agents.run.training.result_summary` prints about time.
@@ -155,10 +155,7 @@ def _kept(out_dir: Path, device: str, items: list[tuple[str, str]]) -> list[dict
     """The results of an existing study in ``out_dir`` except those of the pairs in ``items``
     measured on ``device`` (so a run replaces only its own rows; other devices' rows stay, each
     with its own run record)."""
-    path = out_dir / "summary.json"
-    if not path.exists():
-        return []
-    return [r for r in load_summary(path)["raw"] if "record" in r
+    return [r for r in earlier_raw(out_dir, []) if "record" in r
             and not (r["record"]["device"] == device and (r["env"], r["policy"]) in items)]
 
 
@@ -175,8 +172,7 @@ def run_training_speed(items: list[tuple[str, str]], seeds: list[int], iteration
     for env, policy in items:
         r = measure_training_speed(env, policy, seeds, iterations, preset, work_dir, first,
                                    full, warm_runs)
-        slug = "".join(c if c.isalnum() else "_" for c in f"{env}_{policy}_{record['device']}")
-        results.append({**r, "run": slug.lower(), "record": record})
+        results.append({**r, "run": slug(f"{env}_{policy}_{record['device']}"), "record": record})
         print(" | ".join(_row(r)), flush=True)
         path = write_training_speed(results, out_dir)
     return path

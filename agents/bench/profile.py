@@ -24,7 +24,7 @@ import jax
 
 from agents.bench.phases import PPO_POLICY, PPO_SEEDS, limit_excursions, phase_programs, time_phase
 from agents.run.loading import deterministic_policy, env_policy, load_run
-from mjxrmp.results.summary import load_summary, run_record, write_study
+from mjxrmp.results.summary import earlier_raw, run_record, slug, write_study
 
 #: Phases whose kernels are counted (the rest are timed only).
 TRACED = ("physics_as_is", "physics_contact_free", "env_step_raw", "env_step",
@@ -122,8 +122,7 @@ def _rows(env_name: str, r: dict[str, Any]) -> list[list[Any]]:
 
 def _run_name(env_name: str, record: dict[str, Any]) -> str:
     """The study's name of one environment's measurement: ``profile_<env>_<device>``."""
-    slug = "".join(c if c.isalnum() else "_" for c in f"{env_name}_{record['device']}")
-    return f"profile_{slug.lower()}"
+    return "profile_" + slug(f"{env_name}_{record['device']}")
 
 
 def write_profile(results: dict[str, dict[str, Any]], out_dir: Path) -> Path:
@@ -164,10 +163,7 @@ def kept_profiles(out_dir: Path, env_names: Sequence[str]) -> dict[str, dict[str
     """The results of an existing ``performance`` study in ``out_dir`` for environments not in
     ``env_names`` (so a run replaces only its own environments' rows, and the others keep their
     own run records); empty without a study."""
-    path = Path(out_dir) / "summary.json"
-    if not path.exists():
-        return {}
-    return {env_name: r for env_name, r in load_summary(path)["raw"].items()
+    return {env_name: r for env_name, r in earlier_raw(out_dir, {}).items()
             if env_name not in env_names and "record" in r}
 
 

@@ -92,6 +92,19 @@ def load_summary(path: str | os.PathLike) -> dict:
     return validate_summary(data, str(path))
 
 
+def earlier_raw(out_dir: str | os.PathLike, default: Any) -> Any:
+    """The ``raw`` measurements of the study already in ``out_dir`` (validated), or ``default``
+    where there is none: what a run that replaces only its own rows starts from."""
+    path = Path(out_dir) / "summary.json"
+    return load_summary(path)["raw"] if path.exists() else default
+
+
+def slug(text: str) -> str:
+    """``text`` in lower case with every character but letters and digits replaced by ``_``:
+    run names and file names built from environments and device kinds."""
+    return "".join(c if c.isalnum() else "_" for c in text.lower())
+
+
 def cpu_name() -> str:
     """``CPU (<cores>-core <model>)``: the model from ``/proc/cpuinfo`` where there is one
     (``platform.processor()`` is empty on many Linux machines), else from ``platform``."""

@@ -28,6 +28,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from mjxrmp.results.summary import slug
 from offline.data import collect, scenarios
 from offline.experiment import step_profile
 from offline.experiment.run import train_chunked
@@ -154,7 +155,7 @@ def device_slug() -> str:
     """``cpu`` or the first device's kind, lower-case alphanumerics and ``_`` (file names)."""
     if jax.default_backend() == "cpu":
         return "cpu"
-    return "".join(c if c.isalnum() else "_" for c in jax.devices()[0].device_kind.lower())
+    return slug(jax.devices()[0].device_kind)
 
 
 def run_benchmark(learners: Sequence[str], path: Path, command: str,
