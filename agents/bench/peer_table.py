@@ -58,7 +58,9 @@ def _table_row(row: dict[str, Any]) -> list[str]:
 
 
 def _headline(run: str, rows: list[dict[str, Any]]) -> dict[str, Any] | None:
-    """Ours against the fastest peer (steady env steps/s) for one run, or None without both."""
+    """Ours against the fastest peer (steady env steps/s) for one run, or None without both; a
+    peer without a finished row in the run (not run, failed, cut short) is named as not
+    measured, so the fastest peer shown is only the fastest of those measured."""
     ok = [r for r in rows if "error" not in r]
     ours = [r for r in ok if r["trainer"] == "ours"]
     peers = [r for r in ok if r["trainer"] != "ours"]
@@ -70,8 +72,10 @@ def _headline(run: str, rows: list[dict[str, Any]]) -> dict[str, Any] | None:
                 "peer / ours (seeds × environments, × the peer)")
     cells = " / ".join(f"{_rate(r['steps_per_s'])} ({r['seeds']} × {r['num_envs']}, "
                        f"{r['steps_per_s'] / best['steps_per_s']:.2f}×)" for r in ours)
-    return {"run": run, "cells": [quantity, f"{_rate(best['steps_per_s'])} ({best['trainer']})",
-                                  cells]}
+    missing = [t for t in _TRAINER_ORDER if t != "ours" and t not in {r["trainer"] for r in peers}]
+    fastest = f"{_rate(best['steps_per_s'])} ({best['trainer']})" + (
+        f"; not measured in this run: {', '.join(missing)}" if missing else "")
+    return {"run": run, "cells": [quantity, fastest, cells]}
 
 
 def _key(row: dict[str, Any]) -> tuple:

@@ -62,6 +62,9 @@ def test_a_device_replaces_only_its_own_rows(rows, tmp_path):
     assert devices.count("CPU (test)") == len(rows) and devices.count("GPU (test)") == 2
     gpu_headline = [h for h in summary["headline"]["rows"] if h["run"] == "thesis_gpu_test"]
     assert "2.00×" in gpu_headline[0]["cells"][2]
+    assert gpu_headline[0]["cells"][1].endswith("(brax); not measured in this run: rejax")
+    cpu_headline = [h for h in summary["headline"]["rows"] if h["run"] == "thesis_cpu_test"]
+    assert ("not measured" in cpu_headline[0]["cells"][1]) == (not HAVE_REJAX)
     assert (tmp_path / "table.csv").read_text().count("\n") == len(devices) + 1
 
 
