@@ -6,8 +6,11 @@ when the first backend initialises, so it must be set before any JAX computation
 removed the flag (and aborts on unknown XLA flags), so it is only set where jaxlib knows it.
 
 Scripts also turn on JAX's persistent compilation cache (docs/design.md §5.6), so a repeated or
-resumed command loads its compiled programs instead of compiling them again. Importing the
-library does not: only :func:`configure_script`, which every script calls, does.
+resumed command loads its compiled programs instead of compiling them again, and keep only each
+operation's own source line in the programs they compile instead of its whole Python traceback
+(which XLA's GPU runtime formats into a profiler annotation for every kernel whenever it loads a
+program). Importing the library does neither: only :func:`configure_script`, which every script
+calls, does.
 """
 
 from __future__ import annotations
@@ -25,6 +28,9 @@ CACHE_OFF = ("off", "0", "false")
 #: JAX's own variables; a user who sets the directory keeps full control of the cache.
 JAX_CACHE_DIR_ENV = "JAX_COMPILATION_CACHE_DIR"
 JAX_MIN_TIME_ENV = "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"
+#: JAX's variable choosing whether compiled programs carry each operation's full Python traceback.
+TRACEBACKS_ENV = "JAX_INCLUDE_FULL_TRACEBACKS_IN_LOCATIONS"
+_TRUE = ("y", "yes", "t", "true", "on", "1")
 #: Compiles shorter than this are not cached. JAX's default, 1 s, would skip most CPU programs;
 #: 0 stores every one: on a GPU even the environment's small set-up programs (a dozen of them,
 #: each a few tens of ms to compile) add about 0.6 s to a warm start (docs/design.md §5.6).
@@ -122,7 +128,25 @@ def configure_compile_cache() -> str | None:
     return path
 
 
+def configure_locations() -> bool:
+    """Compile programs with each operation's own source line only, not JAX's default full
+    Python traceback, unless ``JAX_INCLUDE_FULL_TRACEBACKS_IN_LOCATIONS`` is set (the user's
+    value is kept); return whether full tracebacks are on.
+
+    Only debug information changes, not a computation. On a GPU, XLA formats every kernel's
+    tracebacks into a profiler annotation each time it loads a program, which took most of the
+    time a warm start spends loading its programs (docs/design.md §5.6)."""
+    os.environ.setdefault(TRACEBACKS_ENV, "false")
+    full = os.environ[TRACEBACKS_ENV].strip().lower() in _TRUE
+    jax = sys.modules.get("jax")
+    if jax is not None:  # imported already: it read the environment at import time
+        jax.config.update("jax_include_full_tracebacks_in_locations", full)
+    return full
+
+
 def configure_script() -> None:
-    """What every script runs before compiling: the CPU flags and the compile cache."""
+    """What every script runs before compiling: the CPU flags, the compile cache and the
+    programs' source locations."""
     configure_cpu_flags()
     configure_compile_cache()
+    configure_locations()

@@ -6,9 +6,10 @@ anything else a warm start does. :func:`exported` keeps the lowered program itse
 process exports it (``jax.export``) next to the compilation cache, later processes deserialise
 it and compile it, which the persistent cache answers. An artifact is found only by a key over
 everything that shapes the program: the caller's description (run settings, chunk length, the
-input's tree structure, shapes and dtypes), the JAX version and the numeric settings (x64,
-default matmul precision), the device kind and a hash of the project's own source files, so any
-code change makes new artifacts. Sharded and multi-process programs are not kept.
+input's tree structure, shapes and dtypes), the JAX version, the numeric settings (x64,
+default matmul precision), whether it carries full tracebacks, the device kind and a hash of
+the project's own source files, so any code change makes new artifacts. Sharded and
+multi-process programs are not kept.
 
 A script can also have the programs of a repeated command compiled ahead: :func:`remember`
 notes which artifacts a command (labelled by :func:`command_label`) used, and :func:`prefetch`,
@@ -73,7 +74,8 @@ def program_key(description: dict[str, Any], args: Any) -> str:
     parts = {"description": description, "tree": re.sub(r" at 0x[0-9a-f]+", "", str(tree)),
              "avals": [[list(x.shape), str(x.dtype)] for x in leaves],
              "jax": jax.__version__, "device": jax.devices()[0].device_kind,
-             "config": [jax.config.jax_enable_x64, jax.config.jax_default_matmul_precision],
+             "config": [jax.config.jax_enable_x64, jax.config.jax_default_matmul_precision,
+                        jax.config.jax_include_full_tracebacks_in_locations],
              "source": source_hash()}
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()
 

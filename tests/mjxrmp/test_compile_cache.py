@@ -4,6 +4,8 @@ library leaves it off, and that a real script run fills it."""
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import pathlib
 import subprocess
@@ -116,3 +118,34 @@ def test_a_low_level_compile_computes_what_the_default_does():
     low = lowered.compile(compiler_options=_xla.run_once_compiler_options("cpu"))(keys)
     default = lowered.compile(compiler_options={"xla_backend_optimization_level": 3})(keys)
     assert float(jax.numpy.max(jax.numpy.abs(low - default))) <= 1e-6
+
+
+_LOCATIONS = """
+import json
+import jax, jax.numpy as jnp
+from mjxrmp import _xla
+_xla.configure_script()
+full = jax.config.jax_include_full_tracebacks_in_locations
+def inner(x): return jnp.sin(x) * 2
+def outer(x): return inner(x) + 1
+x = jnp.linspace(0.0, 1.0, 5)
+text = jax.jit(outer).lower(x).as_text(debug_info=True)
+print(full, text.count("callsite("), json.dumps(jax.jit(outer)(x).tolist()))
+"""
+
+
+@pytest.mark.parametrize("user_value", [None, "1"])
+def test_scripts_compile_with_source_lines_unless_the_user_asks_for_tracebacks(user_value):
+    """After ``configure_script`` (JAX already imported) a compiled program's operations carry
+    their own source line, not a call-site chain (JAX's default); a user's
+    ``JAX_INCLUDE_FULL_TRACEBACKS_IN_LOCATIONS`` is kept. The computed values are the same."""
+    extra = {} if user_value is None else {_xla.TRACEBACKS_ENV: user_value}
+    env = {k: v for k, v in _script_env(**extra).items()
+           if user_value is not None or k != _xla.TRACEBACKS_ENV}
+    out = subprocess.run([sys.executable, "-c", _LOCATIONS], env=env, cwd=ROOT,
+                         capture_output=True, text=True, timeout=300, check=True)
+    full, callsites, values = out.stdout.strip().split(" ", 2)
+    assert full == str(user_value is not None)
+    assert (int(callsites) > 0) == (user_value is not None)
+    expected = [2 * math.sin(i / 4) + 1 for i in range(5)]
+    assert all(abs(a - b) <= 1e-6 for a, b in zip(json.loads(values), expected, strict=True))
