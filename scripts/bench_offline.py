@@ -7,7 +7,7 @@
     # the same run in 100 k-step compiled chunks, progress written to the JSON after each
     python scripts/bench_offline.py --learners atac --seeds 8 --chunk 2000 \
         --full-steps 1000000 --full-seeds 8 --full-chunk 100000
-    # operations per compiled gradient step (GPU kernels, roughly), by part of the step
+    # operations per compiled gradient step by part of the step (on a GPU: a kernel trace too)
     python scripts/bench_offline.py --learners atac --seeds 8 --no-rate --structure
 
 For each learner (``atac``, ``pspi``, ``mahalo``, ``bc``, ``iql``, ``cql``) at the thesis sizes
@@ -16,7 +16,8 @@ For each learner (``atac``, ``pspi``, ``mahalo``, ``bc``, ``iql``, ``cql``) at t
 * **steps/s** — a compiled ``run(state, chunk)`` vmapped over ``S`` seeds (``--seeds``), timed
   after a warm-up call; reported per seed-step (``gradient steps/s`` of one seed) and in total;
 * **structure** (``--structure``) — the operations one gradient step of the compiled, vmapped
-  ``run`` executes, by opcode and by part of the step
+  ``run`` executes, by opcode and by part of the step, and on a GPU the kernels one call runs
+  per step, their busy and span µs, matrix products and reductions apart
   (:func:`offline.experiment.bench.structure`);
 * **full run** — ``jax.jit(jax.vmap(trainer.train))(keys)`` for ``--full-steps`` gradient steps
   × ``--full-seeds`` seeds, wall time including compilation (compile time reported apart); with

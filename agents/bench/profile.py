@@ -3,7 +3,7 @@ phase timings (:mod:`agents.bench.phases`), GPU kernels per control step from
 ``jax.profiler`` traces, and the joint-limit checks of dropping the constraint stages,
 written as the ``performance`` study (``results/performance/summary.json``).
 
-:func:`kernel_stats` runs a compiled phase under ``jax.profiler.trace`` (with a Perfetto trace)
+:func:`agents.bench.kernels.kernel_stats` runs a compiled phase under ``jax.profiler.trace``
 and counts the kernels on the GPU's compute streams and their busy time; at a few hundred
 environments a control step is bounded by kernel launches rather than arithmetic, so the kernel
 count is the quantity to cut.
@@ -12,16 +12,13 @@ count is the quantity to cut.
 from __future__ import annotations
 
 import collections
-import glob
-import gzip
-import json
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import jax
 
+from agents.bench.kernels import kernel_stats
 from agents.bench.phases import PPO_POLICY, PPO_SEEDS, limit_excursions, phase_programs, time_phase
 from agents.run.loading import deterministic_policy, env_policy, load_run
 from mjxrmp.results.summary import earlier_raw, run_record, slug, write_study
@@ -29,38 +26,6 @@ from mjxrmp.results.summary import earlier_raw, run_record, slug, write_study
 #: Phases whose kernels are counted (the rest are timed only).
 TRACED = ("physics_as_is", "physics_contact_free", "env_step_raw", "env_step",
           "env_step_reset_always", "env_step_pooled", "ppo_rollout")
-
-
-def _gpu_kernels(trace_path: str) -> tuple[int, float]:
-    """``(kernels, busy µs)`` on the GPU stream threads of a Perfetto ``trace.json.gz``."""
-    with gzip.open(trace_path) as f:
-        events = json.load(f)
-    events = events["traceEvents"] if isinstance(events, dict) else events
-    procs, threads = {}, {}
-    for e in events:
-        if e.get("ph") == "M" and e.get("name") == "process_name":
-            procs[e["pid"]] = e["args"]["name"]
-        elif e.get("ph") == "M" and e.get("name") == "thread_name":
-            threads[(e["pid"], e["tid"])] = e["args"]["name"]
-    gpu = {p for p, name in procs.items() if "/device:GPU" in name}
-    kernels = [e for e in events if e.get("ph") == "X" and e.get("pid") in gpu
-               and "Stream" in threads.get((e["pid"], e["tid"]), "")]
-    return len(kernels), float(sum(e.get("dur", 0.0) for e in kernels))
-
-
-def kernel_stats(fn: Any, steps: int) -> dict[str, float] | None:
-    """Kernels and GPU busy µs per control step of ``fn()`` (``steps`` control steps, already
-    compiled), from a ``jax.profiler`` trace; None on a machine without a GPU."""
-    if jax.devices()[0].platform != "gpu":
-        return None
-    with tempfile.TemporaryDirectory() as d:
-        with jax.profiler.trace(d, create_perfetto_trace=True):
-            jax.block_until_ready(fn())
-        traces = glob.glob(f"{d}/**/*.trace.json.gz", recursive=True)
-        if not traces:
-            raise RuntimeError(f"jax.profiler wrote no Perfetto trace under {d}")
-        count, busy = _gpu_kernels(traces[0])
-    return {"kernels_per_step": count / steps, "busy_us_per_step": busy / steps}
 
 
 def limit_checks(env_name: str, episodes: int, horizon: int, key: jax.Array,
@@ -192,5 +157,5 @@ def run_profile(env_names: list[str], batch: int, steps: int, repeats: int, epis
     return path
 
 
-__all__ = ["TRACED", "kept_profiles", "kernel_stats", "limit_checks", "profile_env", "run_profile",
+__all__ = ["TRACED", "kept_profiles", "limit_checks", "profile_env", "run_profile",
            "write_profile"]

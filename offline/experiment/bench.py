@@ -148,6 +148,13 @@ def structure(learner: str, seeds: int = 8, chunk: int = 64, seed: int = 0, data
     print(f"{learner}: {row['ops_per_step']} operations per gradient step ({seeds} seeds "
           f"vmapped, {row['backend']}), {row['fusions_per_step']} of them fusions; by part "
           f"{row['by_part']}", flush=True)
+    if row["gpu_kernels"] is not None:
+        k = row["gpu_kernels"]
+        kinds = ", ".join(f"{kind} {v['kernels_per_step']:.0f} kernels / "
+                          f"{v['busy_us_per_step']:.0f} µs" for kind, v in k["by_kind"].items())
+        print(f"{learner}: on the GPU {k['kernels_per_step']:.0f} kernels per gradient step, "
+              f"{k['busy_us_per_step']:.0f} µs busy in {k['span_us_per_step']:.0f} µs ({kinds})",
+              flush=True)
     return row
 
 

@@ -2,8 +2,10 @@
 roughly one kernel launch each) one gradient step executes, and which part of the step they
 belong to (docs/design.md §4.5 sizes: batch 256, 3×256 MLPs).
 
-At those sizes a step is launch-bound on a GPU, so the number of operations per step, not the
-FLOPs, sets its latency. :func:`step_structure` compiles a trainer's ``run(state, chunk)``
+With one seed a step is launch-bound on a GPU, so the number of operations per step, not the
+FLOPs, sets its latency; with 8 vmapped seeds the GPU is busy instead, and the kernel trace that
+:func:`step_structure` adds on a GPU (``gpu_kernels``) shows where its time goes
+(docs/reports/performance.md). :func:`step_structure` compiles a trainer's ``run(state, chunk)``
 vmapped over seeds exactly as :func:`offline.experiment.bench.measure` times it
 (:func:`offline.experiment.bench.structure` builds the benchmark's trainers), reads the
 optimised HLO (``jax.jit(...).lower(...).compile().as_text()``) with :func:`parse_hlo` and
@@ -30,10 +32,11 @@ import re
 import time
 from collections import Counter
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 
+from agents.bench.kernels import kernel_stats
 from offline.learners.base import Trainer
 
 #: Opcodes that launch nothing (buffer plumbing).
@@ -167,15 +170,26 @@ def hlo_summary(text: str, steps: int) -> dict:
 def step_structure(trainer: Trainer, seeds: int = 8, chunk: int = 64, seed: int = 0) -> dict:
     """:func:`hlo_summary` of ``trainer``'s compiled ``run(state, chunk)`` vmapped over
     ``seeds`` seeds (the program :func:`offline.experiment.bench.measure` times), with its
-    backend and compile time."""
+    backend, compile time and, on a GPU, the kernels one call runs (``gpu_kernels``)."""
     keys = jax.random.split(jax.random.key(seed), seeds)
     state = jax.jit(jax.vmap(trainer.init))(keys)
     run = jax.jit(jax.vmap(trainer.run, in_axes=(0, None)), static_argnums=1)
     t0 = time.perf_counter()
-    text = run.lower(state, chunk).compile().as_text()
+    compiled = run.lower(state, chunk).compile()
     row = {"seeds": seeds, "chunk": chunk, "backend": jax.default_backend(),
            "compile_s": round(time.perf_counter() - t0, 2)}
-    return row | hlo_summary(text, chunk)
+    return row | hlo_summary(compiled.as_text(), chunk) | {
+        "gpu_kernels": _gpu_kernels(compiled, state, chunk)}
+
+
+def _gpu_kernels(compiled: Any, state: Any, chunk: int) -> dict | None:
+    """On a GPU, :func:`agents.bench.kernels.kernel_stats` of one call of the compiled ``run``
+    after a warm-up call (kernels per gradient step, busy and span µs, matrix products and
+    reductions apart); None elsewhere."""
+    if jax.devices()[0].platform != "gpu":
+        return None
+    state, _ = jax.block_until_ready(compiled(state))
+    return kernel_stats(lambda: compiled(state), chunk)
 
 
 __all__ = ["FREE_OPS", "PARTS", "RNG_LOOP", "Instruction", "Module", "executed", "hlo_summary",

@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 
 import envs
+from agents.bench.kernels import gpu_kernel_events, summarise
 from agents.bench.phases import PHYSICS_VARIANTS, physics_model
-from agents.bench.profile import _gpu_kernels, kept_profiles, profile_env, write_profile
+from agents.bench.profile import kept_profiles, profile_env, write_profile
 from mjxrmp.results.summary import load_summary, run_record
 
 
@@ -90,19 +91,29 @@ def test_profile_of_every_phase_is_written_as_a_study(tmp_path):
 
 def test_kernel_count_reads_gpu_stream_events_only(tmp_path):
     """Only complete events on a GPU process's stream threads count (host threads and CPU
-    processes do not)."""
+    processes do not); per step they are counted, timed, spanned and split by kind."""
     events = [
         {"ph": "M", "name": "process_name", "pid": 1, "args": {"name": "/device:GPU:0"}},
         {"ph": "M", "name": "process_name", "pid": 2, "args": {"name": "/host:CPU"}},
         {"ph": "M", "name": "thread_name", "pid": 1, "tid": 7,
          "args": {"name": "Stream #14(Compute)"}},
         {"ph": "M", "name": "thread_name", "pid": 1, "tid": 8, "args": {"name": "launcher"}},
-        {"ph": "X", "pid": 1, "tid": 7, "ts": 0, "dur": 2.0},
-        {"ph": "X", "pid": 1, "tid": 7, "ts": 3, "dur": 1.5},
+        {"ph": "X", "pid": 1, "tid": 7, "ts": 0, "dur": 2.0, "name": "gemm_fusion_dot.3"},
+        {"ph": "X", "pid": 1, "tid": 7, "ts": 3, "dur": 1.5, "name": "input_reduce_fusion"},
+        {"ph": "X", "pid": 1, "tid": 7, "ts": 5, "dur": 0.5, "name": "loop_add_fusion"},
         {"ph": "X", "pid": 1, "tid": 8, "ts": 0, "dur": 9.0},
         {"ph": "X", "pid": 2, "tid": 7, "ts": 0, "dur": 9.0},
     ]
     path = tmp_path / "t.trace.json.gz"
     with gzip.open(path, "wt") as f:
         json.dump({"traceEvents": events}, f)
-    assert _gpu_kernels(str(path)) == (2, 3.5)
+    kernels = gpu_kernel_events(str(path))
+    assert [e["name"] for e in kernels] == ["gemm_fusion_dot.3", "input_reduce_fusion",
+                                            "loop_add_fusion"]
+    per_step = summarise(kernels, steps=2)
+    assert per_step["kernels_per_step"] == 1.5 and per_step["busy_us_per_step"] == 2.0
+    assert per_step["span_us_per_step"] == 2.75  # 0 → 5.5 µs over 2 steps
+    assert per_step["by_kind"] == {
+        "matrix products": {"kernels_per_step": 0.5, "busy_us_per_step": 1.0},
+        "reductions": {"kernels_per_step": 0.5, "busy_us_per_step": 0.75},
+        "other": {"kernels_per_step": 0.5, "busy_us_per_step": 0.25}}

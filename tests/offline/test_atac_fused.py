@@ -312,5 +312,6 @@ def test_step_structure_counts_the_parts_of_a_tiny_step():
                  "critic_optimizer", "target_update"):
         assert row["by_part"].get(part, 0) > 0, (part, row["by_part"])
     assert row["static"]["while_loops"] >= 1 and np.isfinite(row["compile_s"])
+    assert (row["gpu_kernels"] is None) == (jax.devices()[0].platform != "gpu")
     with pytest.raises(ValueError, match="ENTRY"):
         step_profile.parse_hlo("not hlo")
