@@ -6,11 +6,11 @@ when the first backend initialises, so it must be set before any JAX computation
 removed the flag (and aborts on unknown XLA flags), so it is only set where jaxlib knows it.
 
 Scripts also turn on JAX's persistent compilation cache (docs/design.md §5.6), so a repeated or
-resumed command loads its compiled programs instead of compiling them again, and keep only each
-operation's own source line in the programs they compile instead of its whole Python traceback
-(which XLA's GPU runtime formats into a profiler annotation for every kernel whenever it loads a
-program). Importing the library does neither: only :func:`configure_script`, which every script
-calls, does.
+resumed command loads its compiled programs instead of compiling them again, and keep one
+source frame per operation in the programs they compile instead of up to 100 of its Python
+traceback (which XLA's GPU runtime formats into a profiler annotation for every kernel whenever
+it loads a program). Importing the library does neither: only :func:`configure_script`, which
+every script calls, does.
 """
 
 from __future__ import annotations
@@ -28,9 +28,10 @@ CACHE_OFF = ("off", "0", "false")
 #: JAX's own variables; a user who sets the directory keeps full control of the cache.
 JAX_CACHE_DIR_ENV = "JAX_COMPILATION_CACHE_DIR"
 JAX_MIN_TIME_ENV = "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"
-#: JAX's variable choosing whether compiled programs carry each operation's full Python traceback.
-TRACEBACKS_ENV = "JAX_INCLUDE_FULL_TRACEBACKS_IN_LOCATIONS"
-_TRUE = ("y", "yes", "t", "true", "on", "1")
+#: JAX's variable: how many Python frames each operation's location in a compiled program keeps.
+TRACEBACK_LIMIT_ENV = "JAX_TRACEBACK_IN_LOCATIONS_LIMIT"
+#: The scripts' default: the operation's own source frame (JAX's default keeps up to 100).
+TRACEBACK_FRAMES = 1
 #: Compiles shorter than this are not cached. JAX's default, 1 s, would skip most CPU programs;
 #: 0 stores every one: on a GPU even the environment's small set-up programs (a dozen of them,
 #: each a few tens of ms to compile) add about 0.6 s to a warm start (docs/design.md §5.6).
@@ -128,20 +129,27 @@ def configure_compile_cache() -> str | None:
     return path
 
 
-def configure_locations() -> bool:
-    """Compile programs with each operation's own source line only, not JAX's default full
-    Python traceback, unless ``JAX_INCLUDE_FULL_TRACEBACKS_IN_LOCATIONS`` is set (the user's
-    value is kept); return whether full tracebacks are on.
+def configure_locations() -> int:
+    """Compile programs whose operations keep :data:`TRACEBACK_FRAMES` Python frame as their
+    location instead of JAX's default 100, unless ``JAX_TRACEBACK_IN_LOCATIONS_LIMIT`` is set
+    (the user's value is kept); return the limit in force.
 
-    Only debug information changes, not a computation. On a GPU, XLA formats every kernel's
-    tracebacks into a profiler annotation each time it loads a program, which took most of the
-    time a warm start spends loading its programs (docs/design.md §5.6)."""
-    os.environ.setdefault(TRACEBACKS_ENV, "false")
-    full = os.environ[TRACEBACKS_ENV].strip().lower() in _TRUE
+    Only debug information changes: not a computation, and not the operations' names (their
+    ``jax.named_scope`` path, which profiles and :mod:`offline.experiment.step_profile` read).
+    On a GPU, XLA formats every kernel's frames into a profiler annotation each time it loads a
+    program, which took most of the time a warm start spends loading its programs
+    (docs/design.md §5.6)."""
+    os.environ.setdefault(TRACEBACK_LIMIT_ENV, str(TRACEBACK_FRAMES))
+    value = os.environ[TRACEBACK_LIMIT_ENV].strip()
+    try:
+        limit = int(value)
+    except ValueError:
+        raise ValueError(f"{TRACEBACK_LIMIT_ENV} must be an integer (a negative one: no limit), "
+                         f"got {value!r}") from None
     jax = sys.modules.get("jax")
     if jax is not None:  # imported already: it read the environment at import time
-        jax.config.update("jax_include_full_tracebacks_in_locations", full)
-    return full
+        jax.config.update("jax_traceback_in_locations_limit", limit)
+    return limit
 
 
 def configure_script() -> None:

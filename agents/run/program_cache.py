@@ -7,7 +7,7 @@ process exports it (``jax.export``) next to the compilation cache, later process
 it and compile it, which the persistent cache answers. An artifact is found only by a key over
 everything that shapes the program: the caller's description (run settings, chunk length, the
 input's tree structure, shapes and dtypes), the JAX version, the numeric settings (x64,
-default matmul precision), whether it carries full tracebacks, the device kind and a hash of
+default matmul precision), the traceback frames it keeps, the device kind and a hash of
 the project's own source files, so any code change makes new artifacts. Sharded and
 multi-process programs are not kept.
 
@@ -75,7 +75,7 @@ def program_key(description: dict[str, Any], args: Any) -> str:
              "avals": [[list(x.shape), str(x.dtype)] for x in leaves],
              "jax": jax.__version__, "device": jax.devices()[0].device_kind,
              "config": [jax.config.jax_enable_x64, jax.config.jax_default_matmul_precision,
-                        jax.config.jax_include_full_tracebacks_in_locations],
+                        jax.config.jax_traceback_in_locations_limit],
              "source": source_hash()}
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()
 

@@ -121,31 +121,45 @@ def test_a_low_level_compile_computes_what_the_default_does():
 
 
 _LOCATIONS = """
-import json
+import json, re
 import jax, jax.numpy as jnp
 from mjxrmp import _xla
 _xla.configure_script()
-full = jax.config.jax_include_full_tracebacks_in_locations
-def inner(x): return jnp.sin(x) * 2
+def inner(x):
+    with jax.named_scope("inner_part"):
+        return jnp.sin(x) * 2
 def outer(x): return inner(x) + 1
 x = jnp.linspace(0.0, 1.0, 5)
-text = jax.jit(outer).lower(x).as_text(debug_info=True)
-print(full, text.count("callsite("), json.dumps(jax.jit(outer)(x).tolist()))
+lowered = jax.jit(outer).lower(x)
+names = re.findall(r'op_name="([^"]*)"', lowered.compile().as_text())
+callsites = lowered.as_text(debug_info=True).count("callsite(")
+print(jax.config.jax_traceback_in_locations_limit, callsites,
+      any("inner_part" in n for n in names), json.dumps(jax.jit(outer)(x).tolist()))
 """
 
 
-@pytest.mark.parametrize("user_value", [None, "1"])
-def test_scripts_compile_with_source_lines_unless_the_user_asks_for_tracebacks(user_value):
+@pytest.mark.parametrize("user_value", [None, "100"])
+def test_scripts_compile_with_one_source_frame_unless_the_user_sets_the_limit(user_value):
     """After ``configure_script`` (JAX already imported) a compiled program's operations carry
-    their own source line, not a call-site chain (JAX's default); a user's
-    ``JAX_INCLUDE_FULL_TRACEBACKS_IN_LOCATIONS`` is kept. The computed values are the same."""
-    extra = {} if user_value is None else {_xla.TRACEBACKS_ENV: user_value}
-    env = {k: v for k, v in _script_env(**extra).items()
-           if user_value is not None or k != _xla.TRACEBACKS_ENV}
+    one source frame, not a chain of call sites (JAX's default limit is 100 frames); a user's
+    ``JAX_TRACEBACK_IN_LOCATIONS_LIMIT`` is kept. Operation names keep their named scopes and the
+    computed values are the same."""
+    # no compile cache: its key ignores debug information, so a hit could bring another limit's
+    env = {k: v for k, v in _script_env(**{_xla.CACHE_ENV: "off"}).items()
+           if k != _xla.TRACEBACK_LIMIT_ENV}
+    if user_value is not None:
+        env[_xla.TRACEBACK_LIMIT_ENV] = user_value
     out = subprocess.run([sys.executable, "-c", _LOCATIONS], env=env, cwd=ROOT,
                          capture_output=True, text=True, timeout=300, check=True)
-    full, callsites, values = out.stdout.strip().split(" ", 2)
-    assert full == str(user_value is not None)
+    limit, callsites, scoped, values = out.stdout.strip().split(" ", 3)
+    assert int(limit) == (_xla.TRACEBACK_FRAMES if user_value is None else int(user_value))
     assert (int(callsites) > 0) == (user_value is not None)
+    assert scoped == "True"
     expected = [2 * math.sin(i / 4) + 1 for i in range(5)]
     assert all(abs(a - b) <= 1e-6 for a, b in zip(json.loads(values), expected, strict=True))
+
+
+def test_a_limit_that_is_not_an_integer_is_refused(monkeypatch):
+    monkeypatch.setenv(_xla.TRACEBACK_LIMIT_ENV, "few")
+    with pytest.raises(ValueError, match="JAX_TRACEBACK_IN_LOCATIONS_LIMIT must be an integer"):
+        _xla.configure_locations()
