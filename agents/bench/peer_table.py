@@ -72,7 +72,8 @@ def _headline(run: str, rows: list[dict[str, Any]]) -> dict[str, Any] | None:
                 "peer / ours (seeds × environments, × the peer)")
     cells = " / ".join(f"{_rate(r['steps_per_s'])} ({r['seeds']} × {r['num_envs']}, "
                        f"{r['steps_per_s'] / best['steps_per_s']:.2f}×)" for r in ours)
-    missing = [t for t in _TRAINER_ORDER if t != "ours" and t not in {r["trainer"] for r in peers}]
+    measured = {r["trainer"] for r in peers}
+    missing = [t for t in _TRAINER_ORDER if t not in measured | {"ours"}]
     fastest = f"{_rate(best['steps_per_s'])} ({best['trainer']})" + (
         f"; not measured in this run: {', '.join(missing)}" if missing else "")
     return {"run": run, "cells": [quantity, fastest, cells]}

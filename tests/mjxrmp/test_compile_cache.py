@@ -144,7 +144,8 @@ def test_scripts_compile_with_one_source_frame_unless_the_user_sets_the_limit(us
     one source frame, not a chain of call sites (JAX's default limit is 100 frames); a user's
     ``JAX_TRACEBACK_IN_LOCATIONS_LIMIT`` is kept. Operation names keep their named scopes and the
     computed values are the same."""
-    # no compile cache: its key ignores debug information, so a hit could bring another limit's
+    # no compile cache: its key ignores debug information, so a hit could bring back an
+    # executable compiled under another limit
     env = {k: v for k, v in _script_env(**{_xla.CACHE_ENV: "off"}).items()
            if k != _xla.TRACEBACK_LIMIT_ENV}
     if user_value is not None:
