@@ -28,8 +28,9 @@ kind × point of the grid × every seed in one compiled program (:mod:`agents.ru
 ``--out`` (default ``runs/sweep_<envs>_<policies>``) with one ordinary run directory per point,
 ``sweep.csv`` and ``sweep_curves.png``.
 
-A repeated command (``--out``, ``--resume``, ``--no-progress``, ``--checkpoint-every`` and
-``--keep-checkpoints`` aside) starts compiling the programs the last one used while it imports
+While it imports, the command starts the device (:func:`agents.run.program_cache.start_device`)
+and, repeated (``--out``, ``--resume``, ``--no-progress``, ``--checkpoint-every`` and
+``--keep-checkpoints`` aside), compiles the programs the last one used
 (:func:`agents.run.program_cache.prefetch`; with the compile cache, ``MJXRMP_COMPILE_CACHE``).
 
 Multi-process (multi-host) training (docs/multihost.md): run the same command in every process
@@ -50,7 +51,12 @@ from mjxrmp import _xla
 
 _xla.configure_script()
 
-from agents.run.program_cache import command_label, prefetch, remember  # noqa: E402
+from agents.run.program_cache import (  # noqa: E402
+    command_label,
+    prefetch,
+    remember,
+    start_device,
+)
 
 #: Options (with a value / without) that do not change what a command compiles.
 _UNCOMPILED = ({"--out", "--checkpoint-every", "--keep-checkpoints"}, {"--resume", "--no-progress"})
@@ -59,11 +65,13 @@ _MULTIPROCESS = ("--distributed", "--coordinator", "--num-processes", "--process
 
 
 def _start_prefetch(argv: list[str]) -> None:
-    """Compile the programs the same command used last time in background threads while the
-    imports below run (:func:`agents.run.program_cache.prefetch`); not in a multi-process
-    run (any abbreviation of its options counts)."""
+    """Start the device and compile the programs the same command used last time in background
+    threads while the imports below run (:func:`agents.run.program_cache.start_device`,
+    :func:`~agents.run.program_cache.prefetch`); not in a multi-process run (any abbreviation of
+    its options counts)."""
     names = {a.split("=", 1)[0] for a in argv if a.startswith("--") and len(a) > 2}
     if not any(f.startswith(n) for n in names for f in _MULTIPROCESS):
+        start_device()
         prefetch(command_label(argv, *_UNCOMPILED))
 
 

@@ -14,7 +14,9 @@ multi-process programs are not kept.
 A script can also have the programs of a repeated command compiled ahead: :func:`remember`
 notes which artifacts a command (labelled by :func:`command_label`) used, and :func:`prefetch`,
 called by the next such command before its heavy imports, deserialises them in background
-threads meanwhile (a compile ahead is only ever used for the artifact key it was made for).
+threads meanwhile (a compile ahead is only ever used for the artifact key it was made for),
+and :func:`start_device` makes the device's first allocation in another (on a GPU, JAX's
+allocator spends about a second on it).
 """
 
 from __future__ import annotations
@@ -41,6 +43,8 @@ ROOT = Path(__file__).resolve().parents[2]
 _MAX_AHEAD = 4
 #: Programs being compiled ahead of their use (:func:`prefetch`), by artifact path.
 _AHEAD: dict[Path, Future] = {}
+#: The background start of the default device (:func:`start_device`), once per process.
+_DEVICE: list[Future] = []
 #: The artifact files this process used, in order of first use (:func:`remember`).
 _USED: list[str] = []
 
@@ -264,6 +268,31 @@ def prefetch(label: str) -> int:
     return min(len(paths), _MAX_AHEAD)
 
 
+def start_device() -> Future:
+    """Initialise JAX's default device and make its first allocation in a background thread, so
+    that it overlaps the imports a script does before its first transfer; the future of that
+    start, the same one for every call in a process.
+
+    On a GPU the first allocation is slow: JAX's allocator reserves 75 % of the device memory
+    and fills a bookkeeping table over all of it (about 1 s on an H200), and the default
+    device's set-up takes as long again; the transfer releases the GIL, so the main thread's
+    imports go on meanwhile (docs/design.md §5.6). An error stays in the future: the main thread
+    meets the same one, with its own message, at its first use of the device."""
+    if not _DEVICE:
+        job: Future = Future()
+        job.set_running_or_notify_cancel()
+
+        def first_transfer() -> None:
+            try:
+                job.set_result(jax.block_until_ready(jax.device_put(0.0)).devices())
+            except Exception as e:  # kept in the future (see above)
+                job.set_exception(e)
+
+        _DEVICE.append(job)
+        threading.Thread(target=first_transfer, name="start device", daemon=True).start()
+    return _DEVICE[0]
+
+
 def _compile_ahead(path: Path, job: Future) -> None:
     """Run in a background thread: ``job`` gets ``(compiled program, pickled output tree)`` of
     the artifact ``path`` (no module is imported here: :func:`_read`)."""
@@ -277,4 +306,4 @@ def _compile_ahead(path: Path, job: Future) -> None:
 
 
 __all__ = ["artifact_dir", "command_label", "exported", "exported_shapes", "prefetch",
-           "program_key", "remember", "source_hash"]
+           "program_key", "remember", "source_hash", "start_device"]

@@ -25,6 +25,7 @@ from agents.run.program_cache import (
     prefetch,
     program_key,
     remember,
+    start_device,
 )
 from agents.run.spec import RunSpec, preset
 from mjxrmp._xla import run_once_compiler_options
@@ -136,9 +137,11 @@ def test_ppo_chunk_from_its_artifact_trains_like_the_direct_compile(cache_dir):
 def new_process(cache_dir):
     """The artifact bookkeeping of a fresh process (what it used, what it compiles ahead)."""
     program_cache._USED.clear()
+    program_cache._DEVICE.clear()
     yield cache_dir
     program_cache._USED.clear()
     program_cache._AHEAD.clear()
+    program_cache._DEVICE.clear()
 
 
 def test_a_repeated_command_gets_its_programs_compiled_ahead(new_process):
@@ -190,15 +193,31 @@ def test_command_label_leaves_out_what_does_not_compile():
 
 
 def test_train_script_prefetches_except_in_a_multi_process_run(new_process):
-    """scripts/train.py starts the compile ahead for its label, never before jax.distributed
-    (abbreviated options included)."""
+    """scripts/train.py starts the device and the compile ahead for its label, never before
+    jax.distributed (abbreviated options included)."""
     train = load_script("train.py")
     exported(jnp.sin, (jnp.ones(2),), {"what": "script"})
     argv = ["--seeds", "0", "--out", "runs/x"]
     for extra in (["--coordinator", "h:1"], ["--dist"], ["--num-proc=2"]):
         remember(command_label(argv + extra, *train._UNCOMPILED))
         train._start_prefetch(argv + extra)
-        assert not program_cache._AHEAD
+        assert not program_cache._AHEAD and not program_cache._DEVICE
     remember(command_label(argv, *train._UNCOMPILED))
     train._start_prefetch([*argv[:2], "--out", "runs/y", "--no-progress"])
     assert len(program_cache._AHEAD) == 1
+    assert program_cache._DEVICE[0].result(timeout=60) == {jax.devices()[0]}
+
+
+def test_the_device_is_started_once_per_process(new_process, monkeypatch):
+    """start_device() makes one first transfer in a background thread; later calls get the same
+    future, and an error in that thread stays in it (the main thread meets it on its own)."""
+    first = start_device()
+    assert start_device() is first and first.result(timeout=60) == {jax.devices()[0]}
+    program_cache._DEVICE.clear()
+
+    def no_device(x):
+        raise RuntimeError("no device")
+
+    monkeypatch.setattr(jax, "device_put", no_device)
+    with pytest.raises(RuntimeError, match="no device"):
+        start_device().result(timeout=60)
