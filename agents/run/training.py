@@ -322,6 +322,9 @@ def run_training(spec: RunSpec, out_dir: str, resume: bool = False, progress: bo
         agree(refused, f"training into {out_dir}")
         program = build(spec, mesh)
         compile_before = program.compile_seconds
+        if not (resume or mesh is not None or is_multiprocess()) and spec.ppo.total_iterations:
+            program.compile_ahead(seed_keys(spec.seeds),
+                                  min(spec.log_every, spec.ppo.total_iterations))
         state, history, done = _initial_state(program, spec, ckpt_dir, resume,
                                               mesh is not None or is_multiprocess())
         writer, total = is_writer(), spec.ppo.total_iterations

@@ -221,3 +221,35 @@ def test_the_device_is_started_once_per_process(new_process, monkeypatch):
     monkeypatch.setattr(jax, "device_put", no_device)
     with pytest.raises(RuntimeError, match="no device"):
         start_device().result(timeout=60)
+
+
+def test_a_chunk_compiled_ahead_is_the_one_the_run_uses(cache_dir):
+    """compile_ahead() compiles the chunk for init's shapes while init compiles; executable()
+    takes that compile (nothing compiled twice), and it trains exactly like a direct compile."""
+    program_module._program.cache_clear()
+    program = build(SPEC)
+    keys = seed_keys(SPEC.seeds)
+    job = program.compile_ahead(keys, 1)
+    state = program.initial_state(keys)
+    chunk = program.executable(state, 1)
+    assert job.done() and not program.ahead and len(program.executables) == 1
+    assert program.executable(state, 1) is chunk
+    direct = program.run.lower(state, 1).compile()(state)
+    for a, b in zip(jax.tree.leaves(chunk(state)), jax.tree.leaves(direct), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_an_error_compiling_ahead_is_raised_where_the_chunk_is_needed(cache_dir, monkeypatch):
+    program_module._program.cache_clear()
+    program = build(SPEC)
+    keys = seed_keys(SPEC.seeds)
+
+    def broken(keys):
+        raise RuntimeError("shapes unavailable")
+
+    monkeypatch.setattr(program, "state_shapes", broken)
+    program.compile_ahead(keys, 1)
+    state = program.initial_state(keys)
+    with pytest.raises(RuntimeError, match="shapes unavailable"):
+        program.executable(state, 1)
+    program_module._program.cache_clear()
