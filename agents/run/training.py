@@ -244,18 +244,6 @@ def _divergence_error(error: DivergenceError, ckpt_dir: str) -> DivergenceError:
         else f"no checkpoint was written before it (none in {ckpt_dir})")
 
 
-def _dispatch(program: Program, spec: RunSpec, state: TrainState, done: int
-              ) -> tuple[Any, int, float] | None:
-    """Start the chunk after iteration ``done`` on the device (JAX dispatches asynchronously):
-    ``(its output, its length, the start time)``, or None when the run is complete."""
-    total = spec.ppo.total_iterations
-    if done >= total:
-        return None
-    n = min(spec.log_every, total - done)
-    executable = program.executable(state, n)
-    return executable(state), n, time.perf_counter()
-
-
 def _train_chunks(program: Program, spec: RunSpec, state: TrainState, done: int,
                   log: _RunLog, saver: _Saver, runs: list[str] | None = None
                   ) -> tuple[TrainState, int, float]:
@@ -263,31 +251,27 @@ def _train_chunks(program: Program, spec: RunSpec, state: TrainState, done: int,
     checkpointing every ``checkpoint_every`` and at the end; on Ctrl-C checkpoint what is done
     and re-raise; on a non-finite metric or parameter log the chunk and raise
     :class:`DivergenceError` (without checkpointing it). Returns ``(state, iterations done,
-    training seconds)``. ``runs`` names the rows of the vmapped axis (default: the seeds).
-
-    Once a chunk's metrics are checked, the next chunk is started before this one is logged
-    and checkpointed, so the device trains while the host writes (docs/design.md §5.6);
-    a divergence is found before the next chunk starts, and an interrupt checkpoints the last
-    chunk that finished."""
-    train_s, diverged = 0.0, None
+    training seconds)``. ``runs`` names the rows of the vmapped axis (default: the seeds)."""
+    total, train_s, diverged = spec.ppo.total_iterations, 0.0, None
     runs = runs or [f"seed {s}" for s in spec.seeds]
     try:
-        running = _dispatch(program, spec, state, done)
-        while running is not None:
-            (new_state, metrics), n, t0 = running
-            start, metrics = done, to_host(metrics)  # blocks until the chunk is done
+        while done < total:
+            start, n = done, min(spec.log_every, total - done)
+            executable = program.executable(state, n)
+            t0 = time.perf_counter()
+            new_state, metrics = executable(state)
+            metrics = to_host(metrics)  # blocks until the chunk is done
             dt = time.perf_counter() - t0
             train_s += dt
             params = to_host(new_state.params) if is_multiprocess() else new_state.params
             diverged = _divergence(runs, metrics, params, start)
             if diverged is None:
                 state, done = new_state, start + n
-                running = _dispatch(program, spec, state, done)
             log.append(metrics, start, start + n, dt)
             if diverged is not None:
                 log.close_bar()
                 raise _divergence_error(diverged, saver.ckpt_dir)
-            if done % spec.checkpoint_every == 0 or done == spec.ppo.total_iterations:
+            if done % spec.checkpoint_every == 0 or done == total:
                 saver.save(done, state, log.history)
     except KeyboardInterrupt:
         log.close_bar()

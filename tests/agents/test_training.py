@@ -22,10 +22,9 @@ from script_main import load_script
 import envs
 from agents.ppo import PPOConfig, make_train, make_trainer
 from agents.ppo.normalization import init_stats, normalize, update_stats
-from agents.run import checkpoint, training
+from agents.run import checkpoint
 from agents.run.loading import checkpoint_steps
 from agents.run.logs import read_csv
-from agents.run.program import Program
 from agents.run.spec import RunSpec, parse_overrides, preset
 from agents.run.training import run_training
 
@@ -117,27 +116,6 @@ def test_resumed_run_equals_uninterrupted(uninterrupted, tmp_path):
     _assert_tree_close(resumed.state.params, result.state.params)
     history, _ = read_csv(os.path.join(out, "metrics.csv"))
     assert history["mean_reward"].shape == (2, 4)
-
-
-def test_the_next_chunk_starts_before_the_last_one_is_logged(tmp_path, monkeypatch):
-    """The device trains the next chunk while the host logs and checkpoints the last one:
-    both chunks of the run are started before the first one is logged."""
-    events = []
-    executable, append = Program.executable, training._RunLog.append
-
-    def started(self, state, n):
-        events.append("start")
-        return executable(self, state, n)
-
-    def logged(self, metrics, start, done, seconds):
-        events.append(f"log {start}")
-        return append(self, metrics, start, done, seconds)
-
-    monkeypatch.setattr(Program, "executable", started)
-    monkeypatch.setattr(training._RunLog, "append", logged)
-    result = run_training(SPEC, str(tmp_path / "run"), progress=False)
-    assert events == ["start", "start", "log 0", "log 2"]
-    assert result.history["mean_reward"].shape == (2, 4)
 
 
 def test_interrupted_run_keeps_completed_iterations(uninterrupted, tmp_path):
