@@ -84,21 +84,32 @@ def make_update(nets: PPONetworks, tx: optax.GradientTransformation, config: PPO
 
     def epochs(params, opt_state, stats, flat, keys, hp):
         def update_minibatch(carry, mb):
-            params, opt_state = carry
+            params, opt_state, sums = carry
             (_, metrics), grads = loss_grad(params, constrain_mb(mb), stats, hp)
             updates, opt_state = tx.update(grads, opt_state, params)
             updates = jax.tree.map(lambda u: hp.learning_rate * u, updates)
-            return (optax.apply_updates(params, updates), opt_state), metrics
+            sums = jax.tree.map(jnp.add, sums, metrics)
+            return (optax.apply_updates(params, updates), opt_state, sums), None
 
         def update_epoch(carry, perm):
             mbs = constrain_mb(jax.tree.map(lambda x: _minibatches(x, perm, n_mb), flat), 1)
-            return jax.lax.scan(update_minibatch, carry, mbs)
+            return jax.lax.scan(update_minibatch, carry, mbs)[0], None
 
         # every epoch's shuffle drawn before the epochs: one batched sort instead of one per
         # epoch (the same permutations as drawing each inside its epoch)
         perms = jax.vmap(lambda key: jax.vmap(lambda k: jax.random.permutation(k, block_len))(
             jax.random.split(key, blocks)))(keys)
-        return jax.lax.scan(update_epoch, (params, opt_state), perms)
+        # the minibatch metrics summed in the loop's carry, not stacked: stacking wrote each
+        # one into its own buffer, a kernel per metric per minibatch step on a GPU
+        mb = jax.tree.map(lambda x: jax.ShapeDtypeStruct((config.minibatch_size, *x.shape[2:]),
+                                                         x.dtype), flat)
+        sums = jax.tree.map(lambda m: jnp.zeros(m.shape, m.dtype),
+                            jax.eval_shape(lambda p, b, s: loss(p, b, s, hp)[1],
+                                           params, mb, stats))
+        (params, opt_state, sums), _ = jax.lax.scan(update_epoch, (params, opt_state, sums),
+                                                    perms)
+        steps = config.update_epochs * n_mb
+        return (params, opt_state), {k: v / steps for k, v in sums.items()}
 
     def update(ts, tr, key):
         stats, hp = ts.obs_stats, resolve(config, ts.hparams)
@@ -116,7 +127,7 @@ def make_update(nets: PPONetworks, tx: optax.GradientTransformation, config: PPO
                                           jax.random.split(key, config.update_epochs), hp)
         if config.normalize_observations:
             stats = update_stats(stats, tr.obs)
-        metrics = {k: jnp.mean(v) for k, v in upd.items()}
+        metrics = dict(upd)
         metrics.update(episode_metrics(tr))
         ts = ts._replace(params=params, opt_state=opt_state, obs_stats=stats,
                          iteration=ts.iteration + 1)

@@ -6,6 +6,7 @@ MJX), so the whole module compiles and runs in well under a minute on 2 CPU core
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import jax
@@ -15,7 +16,15 @@ import pytest
 from brax.envs.base import Env, State
 
 import envs
-from agents.ppo import GaussianPolicy, PPOConfig, ValueMLP, gae, make_train, ppo_loss
+from agents.ppo import (
+    GaussianPolicy,
+    PPOConfig,
+    ValueMLP,
+    gae,
+    make_train,
+    make_trainer,
+    ppo_loss,
+)
 
 
 class MoveToZero(Env):
@@ -248,6 +257,28 @@ def test_vmap_over_seeds_equals_separate_runs():
     assert np.all(np.asarray(metrics_v["episodes"]) > 0)
     assert np.all(np.isfinite(np.asarray(metrics_v["mean_episode_return"])))
     np.testing.assert_allclose(metrics_v["safe_fraction"], 1.0)  # 1 obstacle, tiny moves
+
+
+def test_update_metrics_are_the_means_over_every_minibatch_step():
+    """The update's loss metrics are the means over its 3 epochs × 4 minibatch steps: at a
+    vanishing learning rate the parameters stay put and (advantages not normalised per
+    minibatch) that mean is the metric of the whole batch, computed here in one call."""
+    cfg = dataclasses.replace(TINY, num_minibatches=4, update_epochs=3, learning_rate=1e-12,
+                              normalize_advantages=False, normalize_observations=False)
+    trainer = make_trainer(envs.make("point2d"), config=cfg)
+    ts, tr = jax.jit(trainer.rollout)(trainer.init(jax.random.PRNGKey(0)),
+                                      jax.random.PRNGKey(1))
+    _, metrics = jax.jit(trainer.update)(ts, tr, jax.random.PRNGKey(2))
+    value = lambda p, o: trainer.value_net.apply(p, o)  # noqa: E731
+    adv, ret = gae(tr.rewards, tr.values, tr.dones, tr.truncations,
+                   value(ts.params["value"], ts.env_state.obs), cfg.gamma, cfg.gae_lambda)
+    whole = jax.tree.map(lambda x: x.reshape((-1, *x.shape[2:])), {
+        "obs": tr.obs, "actions": tr.actions, "log_probs": tr.log_probs, "advantages": adv,
+        "returns": ret})
+    _, want = ppo_loss(ts.params, whole, trainer.policy.apply, value, cfg.clip_eps,
+                       cfg.vf_coef, cfg.ent_coef, normalize_advantages=False)
+    for k, v in want.items():
+        np.testing.assert_allclose(metrics[k], v, rtol=1e-5, atol=1e-7, err_msg=k)
 
 
 def test_training_improves_on_move_to_zero():
