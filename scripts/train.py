@@ -51,12 +51,7 @@ from mjxrmp import _xla
 
 _xla.configure_script()
 
-from agents.run.program_cache import (  # noqa: E402
-    command_label,
-    prefetch,
-    remember,
-    start_device,
-)
+from agents.run.program_cache import command_label, prefetch, remember, start_device  # noqa: E402
 
 #: Options (with a value / without) that do not change what a command compiles.
 _UNCOMPILED = ({"--out", "--checkpoint-every", "--keep-checkpoints"}, {"--resume", "--no-progress"})
