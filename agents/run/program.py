@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import Future
@@ -19,7 +18,7 @@ import numpy as np
 from jax.sharding import Mesh
 
 from agents.ppo import PPOConfig, Trainer, TrainState, make_env_and_policy, make_trainer
-from agents.run.program_cache import exported, exported_shapes
+from agents.run.program_cache import exported, exported_shapes, in_background
 from agents.run.spec import RunSpec
 from envs.wrappers import CONDITIONAL_RESET_BACKENDS
 from mjxrmp._xla import run_once_compiler_options
@@ -72,20 +71,12 @@ class Program:
         itself (XLA compiles without the GIL: 3-link thesis chunk, H200, 32.8 s → 25.8 s for
         both; docs/design.md §5.6). :meth:`executable` waits for it; an error in the thread is
         raised there. Not for sharded programs (the shapes carry no sharding)."""
-        job: Future = Future()
-        job.set_running_or_notify_cancel()
-
         def compile_chunk() -> None:
-            try:
-                shapes = self.state_shapes(keys)
-                self.executables[_chunk_key(shapes, n)] = self._compile_run(shapes, n)
-                job.set_result(None)
-            except Exception as e:  # raised by executable()
-                job.set_exception(e)
+            shapes = self.state_shapes(keys)
+            self.executables[_chunk_key(shapes, n)] = self._compile_run(shapes, n)
 
-        self.ahead[n] = job
-        threading.Thread(target=compile_chunk, name=f"compile chunk {n}", daemon=True).start()
-        return job
+        self.ahead[n] = in_background(compile_chunk, f"compile chunk {n}")
+        return self.ahead[n]
 
     def _from_artifact(self, fn: Callable, args: tuple, what: dict[str, Any],
                        compiler_options: dict[str, Any] | None = None) -> Callable | None:

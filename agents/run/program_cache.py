@@ -262,10 +262,25 @@ def prefetch(label: str) -> int:
     paths = [folder / n for n in _recorded(_record(folder, label)) if (folder / n).exists()]
     for path in paths[:_MAX_AHEAD]:
         if path not in _AHEAD:
-            _AHEAD[path] = job = Future()
-            threading.Thread(target=_compile_ahead, args=(path, job),
-                             name=f"prefetch {path.name[:12]}").start()
+            _AHEAD[path] = in_background(functools.partial(_compile_ahead, path),
+                                         f"prefetch {path.name[:12]}", daemon=False)
     return min(len(paths), _MAX_AHEAD)
+
+
+def in_background(work: Callable[[], Any], name: str, daemon: bool = True) -> Future:
+    """Run ``work()`` in a thread named ``name``; the future of its result, or of the
+    exception it raised (for the caller to raise or handle where it needs the result)."""
+    job: Future = Future()
+    job.set_running_or_notify_cancel()
+
+    def run() -> None:
+        try:
+            job.set_result(work())
+        except Exception as e:  # handed to the caller through the future
+            job.set_exception(e)
+
+    threading.Thread(target=run, name=name, daemon=daemon).start()
+    return job
 
 
 def start_device() -> Future:
@@ -279,31 +294,27 @@ def start_device() -> Future:
     imports go on meanwhile (docs/design.md §5.6). An error stays in the future: the main thread
     meets the same one, with its own message, at its first use of the device."""
     if not _DEVICE:
-        job: Future = Future()
-        job.set_running_or_notify_cancel()
-
-        def first_transfer() -> None:
-            try:
-                job.set_result(jax.block_until_ready(jax.device_put(0.0)).devices())
-            except Exception as e:  # kept in the future (see above)
-                job.set_exception(e)
-
-        _DEVICE.append(job)
-        threading.Thread(target=first_transfer, name="start device", daemon=True).start()
+        _DEVICE.append(in_background(
+            lambda: jax.block_until_ready(jax.device_put(0.0)).devices(), "start device"))
     return _DEVICE[0]
 
 
-def _compile_ahead(path: Path, job: Future) -> None:
-    """Run in a background thread: ``job`` gets ``(compiled program, pickled output tree)`` of
-    the artifact ``path`` (no module is imported here: :func:`_read`)."""
-    if not job.set_running_or_notify_cancel():
-        return
-    try:
-        exp, tree, options = _read(path)
-        job.set_result((_compile(exp, options), tree))
-    except Exception as e:  # handed to the caller through the future
-        job.set_exception(e)
+def _compile_ahead(path: Path) -> tuple[Any, bytes]:
+    """``(compiled program, pickled output tree)`` of the artifact ``path``, for a background
+    thread (no module is imported here: :func:`_read`)."""
+    exp, tree, options = _read(path)
+    return _compile(exp, options), tree
 
 
-__all__ = ["artifact_dir", "command_label", "exported", "exported_shapes", "prefetch",
-           "program_key", "remember", "source_hash", "start_device"]
+__all__ = [
+    "artifact_dir",
+    "command_label",
+    "exported",
+    "exported_shapes",
+    "in_background",
+    "prefetch",
+    "program_key",
+    "remember",
+    "source_hash",
+    "start_device",
+]
