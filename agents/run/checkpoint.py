@@ -34,7 +34,6 @@ from collections.abc import Callable
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from agents.run.distributed import manager_options, orbax, restore_target
@@ -369,8 +368,10 @@ def _restore_step(directory: str | os.PathLike, step: int, template: Any,
     abstract = {f"leaf_{i:05d}": restore_target(x) for i, x in enumerate(leaves)
                 if np.prod(x.shape) > 0}
     flat = _orbax_read(directory, step, "state", orbax().args.StandardRestore(abstract))
-    out = [flat[f"leaf_{i:05d}"] if np.prod(x.shape) > 0 else jnp.zeros(x.shape, x.dtype)
-           for i, x in enumerate(leaves)]
+    # zero-size leaves are not stored; made on the host and transferred, not by jnp.zeros (a
+    # compile per shape: 0.2 s for the 38 of a 3-link PPO state on this CPU)
+    out = [flat[f"leaf_{i:05d}"] if np.prod(x.shape) > 0 else
+           jax.device_put(np.zeros(x.shape, x.dtype)) for i, x in enumerate(leaves)]
     state = jax.tree.unflatten(treedef, out)
     leaf = None if allow_nonfinite else first_nonfinite(state)
     if leaf is not None:
