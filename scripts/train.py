@@ -28,10 +28,10 @@ kind × point of the grid × every seed in one compiled program (:mod:`agents.ru
 ``--out`` (default ``runs/sweep_<envs>_<policies>``) with one ordinary run directory per point,
 ``sweep.csv`` and ``sweep_curves.png``.
 
-While it imports, the command starts the device, imports the checkpoint library for a resume
+While it imports, the command starts the device (:func:`agents.run.program_cache.start_device`)
 and, repeated (``--out``, ``--resume``, ``--no-progress``, ``--checkpoint-every`` and
 ``--keep-checkpoints`` aside), compiles the programs the last one used
-(:mod:`agents.run.program_cache`; with the compile cache, ``MJXRMP_COMPILE_CACHE``).
+(:func:`agents.run.program_cache.prefetch`; with the compile cache, ``MJXRMP_COMPILE_CACHE``).
 
 Multi-process (multi-host) training (docs/multihost.md): run the same command in every process
 with ``--coordinator HOST:PORT --num-processes N --process-id I`` (or ``--distributed`` to take
@@ -51,7 +51,7 @@ from mjxrmp import _xla
 
 _xla.configure_script()
 
-from agents.run import program_cache as warm  # noqa: E402
+from agents.run.program_cache import command_label, prefetch, remember, start_device  # noqa: E402
 
 #: Options (with a value / without) that do not change what a command compiles.
 _UNCOMPILED = ({"--out", "--checkpoint-every", "--keep-checkpoints"}, {"--resume", "--no-progress"})
@@ -60,15 +60,14 @@ _MULTIPROCESS = ("--distributed", "--coordinator", "--num-processes", "--process
 
 
 def _start_prefetch(argv: list[str]) -> None:
-    """Start the device, compile the programs the same command used last time and import
-    orbax for a resume in background threads while the imports below run (:func:`~agents.run.
-    program_cache.start_device`, ``prefetch``, ``import_ahead``); not in a multi-process run."""
+    """Start the device and compile the programs the same command used last time in background
+    threads while the imports below run (:func:`agents.run.program_cache.start_device`,
+    :func:`~agents.run.program_cache.prefetch`); not in a multi-process run (any abbreviation of
+    its options counts)."""
     names = {a.split("=", 1)[0] for a in argv if a.startswith("--") and len(a) > 2}
     if not any(f.startswith(n) for n in names for f in _MULTIPROCESS):
-        warm.start_device()
-        warm.prefetch(warm.command_label(argv, *_UNCOMPILED))
-        if "--resume" in argv:
-            warm.import_ahead("orbax.checkpoint")
+        start_device()
+        prefetch(command_label(argv, *_UNCOMPILED))
 
 
 if __name__ == "__main__":
@@ -186,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_DIVERGED
     except KeyboardInterrupt:
         return 130
-    warm.remember(warm.command_label(sys.argv[1:] if argv is None else argv, *_UNCOMPILED))
+    remember(command_label(sys.argv[1:] if argv is None else argv, *_UNCOMPILED))
     if result.history:
         print(result_summary(result), file=sys.stderr)
     print(f"wrote {out}/" + ("sweep.csv, sweep_curves.png and one run directory per point"

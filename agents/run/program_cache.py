@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import importlib
 import json
 import pickle
 import re
@@ -300,13 +299,6 @@ def start_device() -> Future:
     return _DEVICE[0]
 
 
-def import_ahead(module: str) -> Future:
-    """Import ``module`` in a background thread, so that a later import of it in the main
-    thread finds it done (or waits for the rest): e.g. ``orbax.checkpoint`` for a resume's
-    restore while the script's other imports and the device start run."""
-    return in_background(functools.partial(importlib.import_module, module), f"import {module}")
-
-
 def _compile_ahead(path: Path) -> tuple[Any, bytes]:
     """``(compiled program, pickled output tree)`` of the artifact ``path``, for a background
     thread (no module is imported here: :func:`_read`)."""
@@ -319,7 +311,6 @@ __all__ = [
     "command_label",
     "exported",
     "exported_shapes",
-    "import_ahead",
     "in_background",
     "prefetch",
     "program_key",

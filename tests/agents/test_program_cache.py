@@ -7,7 +7,6 @@ restore target), and the programs of a repeated command are compiled ahead in th
 from __future__ import annotations
 
 import json
-import sys
 from typing import NamedTuple
 
 import jax
@@ -207,21 +206,6 @@ def test_train_script_prefetches_except_in_a_multi_process_run(new_process):
     train._start_prefetch([*argv[:2], "--out", "runs/y", "--no-progress"])
     assert len(program_cache._AHEAD) == 1
     assert program_cache._DEVICE[0].result(timeout=60) == {jax.devices()[0]}
-
-
-def test_a_resumed_command_imports_the_checkpoint_library_ahead(new_process, monkeypatch):
-    """import_ahead() imports a module in a background thread (its future holds the module);
-    scripts/train.py asks for orbax.checkpoint only when the command resumes."""
-    job = program_cache.import_ahead("email.mime.text")
-    assert job.result(timeout=60) is sys.modules["email.mime.text"]
-    with pytest.raises(ModuleNotFoundError):
-        program_cache.import_ahead("no_such_module_here").result(timeout=60)
-    train, asked = load_script("train.py"), []
-    monkeypatch.setattr(program_cache, "import_ahead", asked.append)
-    train._start_prefetch(["--seeds", "0"])
-    assert asked == []
-    train._start_prefetch(["--seeds", "0", "--resume"])
-    assert asked == ["orbax.checkpoint"]
 
 
 def test_the_device_is_started_once_per_process(new_process, monkeypatch):
