@@ -26,7 +26,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from mjxrmp._xla import CPU_FLAG
+from mjxrmp._xla import SCRIPT_FLAGS
 from mjxrmp.atomic import atomic_write
 
 REQUIRED = ("study", "title", "report", "runs", "headline", "deviations")
@@ -131,9 +131,12 @@ def package_versions(packages: Sequence[str] = PACKAGES) -> dict[str, str]:
 
 def run_record(command: str, device: str | None = None) -> dict:
     """The ``runs`` entry for a run made now: command, device, package versions and date. XLA
-    flags set by the user (not the CPU workaround every script sets, docs/design.md §5.2) change
-    what is measured, so the command records them."""
-    flags = os.environ.get("XLA_FLAGS", "").replace(CPU_FLAG, "").strip()
+    flags set by the user (not the flags every script sets itself, :data:`mjxrmp._xla.SCRIPT_FLAGS`:
+    docs/design.md §5.2, §5.11) change what is measured, so the command records them."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    for own in SCRIPT_FLAGS:
+        flags = flags.replace(own, "")
+    flags = " ".join(flags.split())
     if flags and not command.startswith("XLA_FLAGS="):
         command = f'XLA_FLAGS="{flags}" {command}'
     if device is None:

@@ -164,3 +164,27 @@ def test_a_limit_that_is_not_an_integer_is_refused(monkeypatch):
     monkeypatch.setenv(_xla.TRACEBACK_LIMIT_ENV, "few")
     with pytest.raises(ValueError, match="JAX_TRACEBACK_IN_LOCATIONS_LIMIT must be an integer"):
         _xla.configure_locations()
+
+
+def test_scripts_let_gpu_kernels_run_concurrently_unless_the_user_chooses_a_mode():
+    """``gpu_xla_flags`` adds XLA:GPU's concurrent command-buffer scheduling to the user's flags
+    once; a user who chose a scheduling mode keeps it."""
+    assert _xla.gpu_xla_flags("") == _xla.GPU_FLAG
+    assert _xla.gpu_xla_flags("--xla_dump_to=/tmp/d") == f"--xla_dump_to=/tmp/d {_xla.GPU_FLAG}"
+    once = _xla.gpu_xla_flags("--xla_dump_to=/tmp/d")
+    assert _xla.gpu_xla_flags(once) == once
+    for mode in ("LHS", "SERIALIZE"):
+        mine = f"--xla_gpu_command_buffer_scheduling_mode={mode}"
+        assert _xla.gpu_xla_flags(mine) == mine
+
+
+def test_the_installed_jaxlib_accepts_the_scripts_flags():
+    """XLA aborts on a flag it does not know: a script's flags must be ones the installed
+    jaxlib parses (a computation runs after ``configure_script``)."""
+    code = ("from mjxrmp import _xla; _xla.configure_script(); import os, jax.numpy as jnp; "
+            "print(float(jnp.arange(4.0).sum()), os.environ['XLA_FLAGS'])")
+    env = {k: v for k, v in _script_env(**{_xla.CACHE_ENV: "off"}).items() if k != "XLA_FLAGS"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, cwd=ROOT,
+                         capture_output=True, text=True, timeout=300, check=True)
+    total, flags = out.stdout.strip().split(" ", 1)
+    assert float(total) == 6.0 and _xla.GPU_FLAG in flags.split()

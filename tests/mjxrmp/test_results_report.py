@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from mjxrmp._xla import CPU_FLAG
+from mjxrmp._xla import CPU_FLAG, GPU_FLAG
 from mjxrmp.results.report import fill_report, headline_table, render_all, render_table, stale_files
 from mjxrmp.results.summary import (
     SummaryError,
@@ -97,10 +97,10 @@ def test_cpu_runs_name_the_processor():
 
 def test_run_record_keeps_the_users_xla_flags(monkeypatch):
     """XLA flags change what a benchmark measures: the recorded command carries the user's,
-    not the CPU workaround every script sets."""
-    monkeypatch.setenv("XLA_FLAGS", CPU_FLAG)
+    not the CPU and GPU flags every script sets itself."""
+    monkeypatch.setenv("XLA_FLAGS", f"{CPU_FLAG} {GPU_FLAG}")
     assert run_record("python scripts/x.py", device="CPU")["command"] == "python scripts/x.py"
-    monkeypatch.setenv("XLA_FLAGS", f"--xla_gpu_enable_command_buffer=FUSION {CPU_FLAG}")
+    monkeypatch.setenv("XLA_FLAGS", f"--xla_gpu_enable_command_buffer=FUSION {CPU_FLAG} {GPU_FLAG}")
     assert run_record("python scripts/x.py", device="CPU")["command"] == (
         'XLA_FLAGS="--xla_gpu_enable_command_buffer=FUSION" python scripts/x.py')
 
