@@ -29,7 +29,7 @@ PACKAGES = ("mjxrmp", "envs", "agents", "offline")
 #: The numbered sections that code and docs cite as ``docs/design.md §N``.
 SECTIONS = ("1", "2", "2.1", "2.2", "2.3", "2.4", "2.5", "3", "4", "4.1", "4.2", "4.3", "4.4",
             "4.5", "4.6", "5", "5.1", "5.2", "5.3", "5.4", "5.5", "5.6", "5.7", "5.8", "5.9",
-            "5.10", "6")
+            "5.10", "5.11", "6")
 #: ``module:attribute`` references in docs/design.md, e.g. ``mjxrmp.core.rmp2:pullback``.
 REFERENCE = re.compile(r"`((?:mjxrmp|envs|agents|offline)(?:\.\w+)*):(\w+(?:\.\w+)*)`")
 #: A citation ``docs/design.md §4.5`` (also the later items of ``§4.2, §4.6``).
