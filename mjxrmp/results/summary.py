@@ -7,7 +7,7 @@ Schema (checked by :func:`validate_summary`; docs/design.md §6)::
       "title": "PPO training",             # the BENCHMARKS.md section heading
       "report": "docs/reports/ppo.md",     # the reader's report for this study
       "runs": {"<run>": {"command": str, "device": str, "versions": {pkg: ver},
-                         "date": "YYYY-MM-DD"}},
+                         "date": "YYYY-MM-DD", "xla_flags": str}},   # xla_flags: optional
       "headline": {"columns": [str, ...], "rows": [{"run": "<run>", "cells": [...]}]},
       "tables": {"<name>": {"columns": [str, ...], "rows": [[...], ...]}},
       "deviations": [str, ...],            # differences from the thesis, one sentence each
@@ -130,10 +130,12 @@ def package_versions(packages: Sequence[str] = PACKAGES) -> dict[str, str]:
 
 
 def run_record(command: str, device: str | None = None) -> dict:
-    """The ``runs`` entry for a run made now: command, device, package versions and date. XLA
-    flags set by the user (not the flags every script sets itself, :data:`mjxrmp._xla.SCRIPT_FLAGS`:
-    docs/design.md §5.2, §5.11) change what is measured, so the command records them."""
-    flags = os.environ.get("XLA_FLAGS", "")
+    """The ``runs`` entry for a run made now: command, device, package versions, date and every
+    XLA flag in force (``xla_flags``). XLA flags set by the user (not the flags every script
+    sets itself, :data:`mjxrmp._xla.SCRIPT_FLAGS`: docs/design.md §5.2, §5.11) change what is
+    measured, so the command records them too."""
+    in_force = " ".join(os.environ.get("XLA_FLAGS", "").split())
+    flags = in_force
     for own in SCRIPT_FLAGS:
         flags = flags.replace(own, "")
     flags = " ".join(flags.split())
@@ -145,7 +147,7 @@ def run_record(command: str, device: str | None = None) -> dict:
         dev = jax.devices()[0]
         device = dev.device_kind if dev.platform != "cpu" else cpu_name()
     return {"command": command, "device": device, "versions": package_versions(),
-            "date": datetime.date.today().isoformat()}
+            "date": datetime.date.today().isoformat(), "xla_flags": in_force}
 
 
 def write_summary(path: str | os.PathLike, data: dict) -> Path:

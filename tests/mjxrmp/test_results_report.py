@@ -82,9 +82,9 @@ def test_load_summary_names_a_file_that_is_not_json(tmp_path):
         load_summary(path)
 
 
-def test_run_record_has_versions_and_an_iso_date():
+def test_run_record_has_versions_an_iso_date_and_the_xla_flags():
     record = run_record("python scripts/x.py", device="CPU")
-    assert set(record) == {"command", "device", "versions", "date"}
+    assert set(record) == {"command", "device", "versions", "date", "xla_flags"}
     assert "jax" in record["versions"]
     validate_summary({**_summary(), "runs": {"gpu": record}})
 
@@ -99,7 +99,9 @@ def test_run_record_keeps_the_users_xla_flags(monkeypatch):
     """XLA flags change what a benchmark measures: the recorded command carries the user's,
     not the CPU and GPU flags every script sets itself."""
     monkeypatch.setenv("XLA_FLAGS", f"{CPU_FLAG} {GPU_FLAG}")
-    assert run_record("python scripts/x.py", device="CPU")["command"] == "python scripts/x.py"
+    record = run_record("python scripts/x.py", device="CPU")
+    assert record["command"] == "python scripts/x.py"
+    assert record["xla_flags"] == f"{CPU_FLAG} {GPU_FLAG}"  # what was in force, all of it
     monkeypatch.setenv("XLA_FLAGS", f"--xla_gpu_enable_command_buffer=FUSION {CPU_FLAG} {GPU_FLAG}")
     assert run_record("python scripts/x.py", device="CPU")["command"] == (
         'XLA_FLAGS="--xla_gpu_enable_command_buffer=FUSION" python scripts/x.py')
