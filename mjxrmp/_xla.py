@@ -45,7 +45,7 @@ MIN_COMPILE_TIME_S = 0.0
 #: beside its actor) share the GPU. A thesis PPO iteration took a third less time on an H200
 #: (docs/design.md §5.11). Ignored by the CPU backend.
 GPU_FLAG = "--xla_gpu_command_buffer_scheduling_mode=CONCURRENT"
-_GPU_MODE_OPTION = "xla_gpu_command_buffer_scheduling_mode"
+_GPU_MODE_OPTION = GPU_FLAG[2:].split("=")[0]  # xla_gpu_command_buffer_scheduling_mode
 #: The flags the scripts set themselves (not a user's choice, so not recorded with a result).
 SCRIPT_FLAGS = (CPU_FLAG, GPU_FLAG)
 

@@ -134,11 +134,8 @@ def run_record(command: str, device: str | None = None) -> dict:
     XLA flag in force (``xla_flags``). XLA flags set by the user (not the flags every script
     sets itself, :data:`mjxrmp._xla.SCRIPT_FLAGS`: docs/design.md §5.2, §5.11) change what is
     measured, so the command records them too."""
-    in_force = " ".join(os.environ.get("XLA_FLAGS", "").split())
-    flags = in_force
-    for own in SCRIPT_FLAGS:
-        flags = flags.replace(own, "")
-    flags = " ".join(flags.split())
+    in_force = os.environ.get("XLA_FLAGS", "").split()
+    flags = " ".join(f for f in in_force if f not in SCRIPT_FLAGS)
     if flags and not command.startswith("XLA_FLAGS="):
         command = f'XLA_FLAGS="{flags}" {command}'
     if device is None:
@@ -147,7 +144,7 @@ def run_record(command: str, device: str | None = None) -> dict:
         dev = jax.devices()[0]
         device = dev.device_kind if dev.platform != "cpu" else cpu_name()
     return {"command": command, "device": device, "versions": package_versions(),
-            "date": datetime.date.today().isoformat(), "xla_flags": in_force}
+            "date": datetime.date.today().isoformat(), "xla_flags": " ".join(in_force)}
 
 
 def write_summary(path: str | os.PathLike, data: dict) -> Path:

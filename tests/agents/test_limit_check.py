@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from env_rollouts import random_action_qpos
 
 import envs
 from agents.bench.phases import limit_excursions
@@ -47,24 +48,12 @@ def test_environments_drop_the_constraint_pipeline_by_default():
         envs.make("franka", constraint_stages="yes")
 
 
-def _rollout(env, steps: int, batch: int) -> np.ndarray:
-    keys = jax.random.split(jax.random.PRNGKey(0), batch)
-    actions = jax.random.uniform(jax.random.PRNGKey(1), (steps, batch, env.action_size),
-                                 minval=-1.0, maxval=1.0)
-
-    def body(s, a):
-        s = jax.vmap(env.step)(s, a)
-        return s, s.pipeline_state.qpos
-
-    return np.asarray(jax.jit(lambda k: jax.lax.scan(body, jax.vmap(env.reset)(k),
-                                                     actions)[1])(keys))
-
-
 @functools.cache
 def _rollout_of(name: str, **env_kwargs: bool) -> np.ndarray:
-    """:func:`_rollout` of ``envs.make(name, **env_kwargs)`` (40 steps × 4 environments),
+    """:func:`random_action_qpos` of ``envs.make(name, **env_kwargs)`` (40 steps × 4
+    environments),
     computed once per module (the looped model is shared by two tests)."""
-    return _rollout(envs.make(name, **env_kwargs), 40, 4)
+    return random_action_qpos(envs.make(name, **env_kwargs), 40, 4)
 
 
 @pytest.mark.parametrize("name,tol", [("three_link/env3", 0.0), ("franka", 1e-5)])

@@ -25,17 +25,9 @@ TOLERANCE = 1e-4
 _ROLLOUT = """
 import sys, jax, numpy as np
 import envs
-out = {}
-for name in ("three_link/env3", "franka"):
-    env = envs.make(name)
-    keys = jax.random.split(jax.random.PRNGKey(0), 512)
-    actions = jax.random.uniform(jax.random.PRNGKey(1), (100, 512, env.action_size),
-                                 minval=-1.0, maxval=1.0)
-    def body(s, a):
-        s = jax.vmap(env.step)(s, a)
-        return s, s.pipeline_state.qpos
-    run = jax.jit(lambda k: jax.lax.scan(body, jax.vmap(env.reset)(k), actions)[1])
-    out[name.replace("/", "_")] = np.asarray(run(keys))
+from env_rollouts import random_action_qpos
+out = {name.replace("/", "_"): random_action_qpos(envs.make(name), 100, 512)
+       for name in ("three_link/env3", "franka")}
 assert jax.default_backend() == "gpu", jax.default_backend()
 np.savez(sys.argv[1], **out)
 """
@@ -44,7 +36,8 @@ np.savez(sys.argv[1], **out)
 def _rollout(path: pathlib.Path, mode_flag: str) -> dict[str, np.ndarray]:
     env = {k: v for k, v in os.environ.items() if k not in ("JAX_PLATFORMS", "XLA_FLAGS")}
     env.update(XLA_FLAGS=mode_flag, JAX_PLATFORMS="cuda", MJXRMP_COMPILE_CACHE="off",
-               PYTHONPATH=os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")]))
+               PYTHONPATH=os.pathsep.join([str(ROOT), str(ROOT / "tests"),
+                                           env.get("PYTHONPATH", "")]))
     env.pop("JAX_COMPILATION_CACHE_DIR", None)  # each mode compiles its own programs
     subprocess.run([sys.executable, "-c", _ROLLOUT, str(path)], env=env, cwd=ROOT,
                    check=True, timeout=900)
