@@ -111,13 +111,14 @@ def first_nonfinite_leaf(tree: Any, *, batched: bool = False
 
 def guard_finite_tree(tree: Any, what: str, step: int, *, unit: str = "step",
                       runs: Sequence[str] | None = None, prefix: str = "params",
-                      batched: bool = False) -> None:
+                      batched: bool = False, finite: Any = None) -> None:
     """Raise :class:`DivergenceError` naming the first non-finite leaf of ``tree`` (its path
     after ``prefix``, e.g. ``params['actor']['Dense_0']['kernel']``) at ``unit step``. With
     ``batched`` every leaf has a leading run axis and the run is named too (``runs[i]``,
     default ``run <i>``). Integer and key leaves are skipped. The tree is reduced to one flag
-    on the device first (:func:`all_finite`); only a non-finite tree is searched on the host."""
-    if bool(all_finite(tree)):
+    on the device first (:func:`all_finite`; ``finite``: that flag, already dispatched by the
+    caller); only a non-finite tree is searched on the host."""
+    if bool(all_finite(tree) if finite is None else finite):
         return
     found = first_nonfinite_leaf(tree, batched=batched)
     if found is not None:

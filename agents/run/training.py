@@ -48,7 +48,7 @@ import os
 import sys
 import time
 from collections.abc import Iterator
-from typing import IO, Any
+from typing import IO, Any, NamedTuple
 
 import jax
 import numpy as np
@@ -69,7 +69,7 @@ from agents.run.logs import (
 from agents.run.program import Program, build, seed_keys
 from agents.run.spec import RunSpec
 from mjxrmp.atomic import atomic_write
-from mjxrmp.divergence import DivergenceError, guard_finite_tree
+from mjxrmp.divergence import DivergenceError, all_finite, guard_finite_tree
 
 #: The lock file of a run directory.
 LOCK_FILE = ".lock"
@@ -218,10 +218,10 @@ class _Saver:
 
 
 def _divergence(runs: list[str], metrics: dict[str, np.ndarray], params: Any,
-                start: int) -> DivergenceError | None:
+                start: int, finite: Any = None) -> DivergenceError | None:
     """What went non-finite in the chunk of iterations after ``start`` (its metrics first, then
-    the parameters it ends with, reduced to one flag on the device), or None if nothing did;
-    ``runs`` names the rows of the vmapped axis."""
+    the parameters it ends with, reduced to one flag on the device: ``finite`` when already
+    dispatched), or None if nothing did; ``runs`` names the rows of the vmapped axis."""
     fault = first_nonfinite_metric(metrics)
     if fault is not None:
         it, s, name, value = fault
@@ -229,7 +229,8 @@ def _divergence(runs: list[str], metrics: dict[str, np.ndarray], params: Any,
                                run=runs[s])
     end = start + next(iter(metrics.values())).shape[1]
     try:
-        guard_finite_tree(params, "training", end, unit="iteration", runs=runs, batched=True)
+        guard_finite_tree(params, "training", end, unit="iteration", runs=runs, batched=True,
+                          finite=finite)
     except DivergenceError as e:
         return e
     return None
@@ -244,38 +245,65 @@ def _divergence_error(error: DivergenceError, ckpt_dir: str) -> DivergenceError:
         else f"no checkpoint was written before it (none in {ckpt_dir})")
 
 
+class _Chunk(NamedTuple):
+    """A dispatched chunk of iterations ``start..start + n``: its (pending) state, metrics and
+    parameter-finiteness flag (None in a multi-process run, which gathers the parameters)."""
+
+    start: int
+    n: int
+    state: TrainState
+    metrics: dict[str, Any]
+    finite: Any
+
+
+def _launch(program: Program, spec: RunSpec, state: TrainState, start: int) -> _Chunk | None:
+    """Dispatch the chunk that follows iteration ``start`` (None when the run is complete);
+    JAX returns before the device has run it (docs/design.md §5.7)."""
+    n = min(spec.log_every, spec.ppo.total_iterations - start)
+    if n <= 0:
+        return None
+    new_state, metrics = program.executable(state, n)(state)
+    finite = None if is_multiprocess() else all_finite(new_state.params)
+    return _Chunk(start, n, new_state, metrics, finite)
+
+
 def _train_chunks(program: Program, spec: RunSpec, state: TrainState, done: int,
                   log: _RunLog, saver: _Saver, runs: list[str] | None = None
                   ) -> tuple[TrainState, int, float]:
     """Run chunks of ``log_every`` iterations up to ``total_iterations``, logging each and
     checkpointing every ``checkpoint_every`` and at the end; on Ctrl-C checkpoint what is done
     and re-raise; on a non-finite metric or parameter log the chunk and raise
-    :class:`DivergenceError` (without checkpointing it). Returns ``(state, iterations done,
-    training seconds)``. ``runs`` names the rows of the vmapped axis (default: the seeds)."""
-    total, train_s, diverged = spec.ppo.total_iterations, 0.0, None
+    :class:`DivergenceError` (without checkpointing it). In one process the next chunk is
+    dispatched before this one's results are read, so the device runs it while the host logs
+    and checkpoints (a diverged chunk's successor is discarded). Returns ``(state, iterations
+    done, training seconds)``: the wall time from the first dispatch to the last chunk read,
+    less compiles. ``runs`` names the rows of the vmapped axis (default: the seeds)."""
+    train_s, diverged, serial = 0.0, None, is_multiprocess()
     runs = runs or [f"seed {s}" for s in spec.seeds]
+    t0, compiled = time.perf_counter(), program.compile_seconds
     try:
-        while done < total:
-            start, n = done, min(spec.log_every, total - done)
-            executable = program.executable(state, n)
-            t0 = time.perf_counter()
-            new_state, metrics = executable(state)
-            metrics = to_host(metrics)  # blocks until the chunk is done
-            dt = time.perf_counter() - t0
-            train_s += dt
-            params = to_host(new_state.params) if is_multiprocess() else new_state.params
-            diverged = _divergence(runs, metrics, params, start)
+        chunk = _launch(program, spec, state, done)
+        while chunk is not None:
+            ahead = None if serial else _launch(program, spec, chunk.state,
+                                                chunk.start + chunk.n)
+            metrics = to_host(chunk.metrics)  # blocks until the chunk is done
+            t1 = time.perf_counter()
+            dt = t1 - t0 - (program.compile_seconds - compiled)
+            train_s, t0, compiled = train_s + dt, t1, program.compile_seconds
+            params = to_host(chunk.state.params) if serial else chunk.state.params
+            diverged = _divergence(runs, metrics, params, chunk.start, chunk.finite)
             if diverged is None:
-                state, done = new_state, start + n
-            log.append(metrics, start, start + n, dt)
+                state, done = chunk.state, chunk.start + chunk.n
+            log.append(metrics, chunk.start, chunk.start + chunk.n, dt)
             if diverged is not None:
                 log.close_bar()
                 raise _divergence_error(diverged, saver.ckpt_dir)
-            if done % spec.checkpoint_every == 0 or done == total:
+            if done % spec.checkpoint_every == 0 or done == spec.ppo.total_iterations:
                 saver.save(done, state, log.history)
+            chunk = _launch(program, spec, state, done) if serial else ahead
     except KeyboardInterrupt:
         log.close_bar()
-        if done > 0 and diverged is None and not is_multiprocess():
+        if done > 0 and diverged is None and not serial:
             saver.save(done, state, log.history)
             print(f"\ninterrupted: checkpoint of iteration {done} written to "
                   f"{saver.ckpt_dir}; continue with --resume", file=sys.stderr)

@@ -22,7 +22,7 @@ from script_main import load_script
 import envs
 from agents.ppo import PPOConfig, make_train, make_trainer
 from agents.ppo.normalization import init_stats, normalize, update_stats
-from agents.run import checkpoint
+from agents.run import checkpoint, training
 from agents.run.loading import checkpoint_steps
 from agents.run.logs import read_csv
 from agents.run.spec import RunSpec, parse_overrides, preset
@@ -142,6 +142,30 @@ def test_interrupted_run_keeps_completed_iterations(uninterrupted, tmp_path):
     np.testing.assert_allclose(resumed.history["mean_reward"][:, :4],
                                result.history["mean_reward"], rtol=1e-5, atol=1e-6)
     assert resumed.history["mean_reward"].shape == (2, 6)
+
+
+def test_next_chunk_is_dispatched_before_the_host_logs_this_one(uninterrupted, tmp_path,
+                                                                 monkeypatch):
+    """The device runs chunk k+1 while the host logs and checkpoints chunk k: when chunk k is
+    logged, chunk k+1 has already been dispatched (the last chunk has no successor), and the
+    run still equals the one of the ``uninterrupted`` fixture."""
+    dispatched, seen = [], []
+    launch, append = training._launch, training._RunLog.append
+
+    def counting_launch(*args):
+        chunk = launch(*args)
+        dispatched.extend([] if chunk is None else [chunk.start])
+        return chunk
+
+    def recording_append(self, metrics, start, done, seconds):
+        seen.append((start, list(dispatched)))
+        return append(self, metrics, start, done, seconds)
+
+    monkeypatch.setattr(training, "_launch", counting_launch)
+    monkeypatch.setattr(training._RunLog, "append", recording_append)
+    result = run_training(SPEC, str(tmp_path / "run"), progress=False)
+    assert seen == [(0, [0, 2]), (2, [0, 2])]
+    _assert_tree_close(result.state.params, uninterrupted[0].state.params, rtol=0, atol=0)
 
 
 def test_keep_checkpoints_none_keeps_every_snapshot(tmp_path):
