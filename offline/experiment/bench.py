@@ -28,7 +28,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from mjxrmp.results.summary import slug
+from mjxrmp.atomic import atomic_write
+from mjxrmp.results.summary import run_record, slug
 from offline.data import collect, scenarios
 from offline.experiment import step_profile
 from offline.experiment.run import train_chunked
@@ -178,13 +179,13 @@ def run_benchmark(learners: Sequence[str], path: Path, command: str,
     on CPU, 20,000 on GPU."""
     chunk = chunk or (10_000 if jax.default_backend() == "cpu" else 20_000)
     data = datasets(scale, seed)
-    result = {"date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-              "command": command, "device": jax.devices()[0].device_kind,
+    result = {**run_record(command, jax.devices()[0].device_kind),
+              "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
               "atac_options": dict(atac_options or {}), "rows": []}
     path.parent.mkdir(parents=True, exist_ok=True)
 
     def write() -> None:
-        path.write_text(json.dumps(result, indent=2) + "\n")
+        atomic_write(path, (json.dumps(result, indent=2) + "\n").encode())
 
     for learner in learners:
         row = (measure(learner, seeds, chunk, seed=seed, data=data, atac_options=atac_options)

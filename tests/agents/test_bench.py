@@ -10,6 +10,7 @@ import os
 import subprocess
 import sys
 
+import jax
 import pytest
 
 from agents.bench.run import fill_defaults, run_benchmark
@@ -95,7 +96,10 @@ def test_offline_full_run_in_chunks_reports_progress(tmp_path):
     path = tmp_path / "b.json"
     out = run_offline_benchmark(["bc"], path, "test", seeds=[1], chunk=20, full_steps=60,
                                 full_seeds=2, full_chunk=20, rates=False, scale=1)
-    row = json.loads(path.read_text())["rows"][0]
+    written = json.loads(path.read_text())
+    assert written["command"].endswith("test") and written["versions"]["jax"] == jax.__version__
+    assert "xla_flags" in written
+    row = written["rows"][0]
     assert "rates" not in row
     assert row["full_progress"]["steps_done"] == 60 and row["full_progress"]["seeds"] == 2
     full = out["rows"][0]["full"]
