@@ -7,7 +7,10 @@ and on a GPU host.
 The suite is dominated by compilation (hundreds of small programs, each run briefly), so it also
 turns XLA's backend (LLVM) optimisation off: compiles get about twice as fast, the compiled code
 somewhat slower; measured on 2 cores, the evaluation and policy-class tests went from 184 s to
-109 s. The same HLO is compiled; results can differ only by rounding.
+109 s. The same HLO is compiled; results can differ only by rounding. Programs are lowered with
+one Python frame per operation's location, as the scripts do (``configure_locations``,
+docs/design.md §5.6): under pytest JAX's default of 100 frames walks deep test-runner stacks for
+every operation (the pooled PPO test: 39–40 s of CPU time with 100 frames, 35–36 s with one).
 
 And it gives the whole session one fresh persistent compilation cache (docs/design.md §5.6): the
 process that starts pytest creates the directory before JAX is imported and sets
@@ -35,9 +38,10 @@ if not os.environ.get("JAX_COMPILATION_CACHE_DIR"):  # unset here: not a worker,
     os.environ["JAX_COMPILATION_CACHE_DIR"] = _SESSION_CACHE
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 
-from mjxrmp._xla import configure_cpu_flags  # noqa: E402
+from mjxrmp._xla import configure_cpu_flags, configure_locations  # noqa: E402
 
 configure_cpu_flags()
+configure_locations()
 if "xla_backend_optimization_level" not in os.environ["XLA_FLAGS"]:
     os.environ["XLA_FLAGS"] += " --xla_backend_optimization_level=0"
 

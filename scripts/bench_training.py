@@ -49,8 +49,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--first-iteration-only", dest="full", action="store_false",
                    help="time only the repeated one-iteration command, not the whole run")
     p.add_argument("--warm-runs", type=int, default=1, metavar="N",
-                   help="repeat the one-iteration command N times with the warm cache (the "
-                        "median is reported)")
+                   help="repeat the one-iteration command and the resumed one N times each "
+                        "with the warm cache (the medians are reported)")
     args = p.parse_args(argv)
     items = [tuple(r.split(":", 1)) if ":" in r else (r, "rmp_residual") for r in args.runs]
     for env, policy in items:

@@ -59,7 +59,8 @@ def measure_training_speed(env: str, policy: str, seeds: list[int], iterations: 
     ``first_warm``: the same settings for one iteration (chunks of one, a new run directory
     each), first with a cache that holds no one-iteration program, then repeated with it
     ``warm_runs`` times (``first_warm`` the run of median ``first_chunk_s``, all of them in
-    ``first_warm_runs``), and ``resumed``: :func:`_timed_resume` (else None). ``full=False``
+    ``first_warm_runs``), and ``resumed``: the median of ``warm_runs`` resumes
+    (:func:`_timed_resumes`; all of them in ``resumed_runs``) (else None). ``full=False``
     measures only the repeated command (its cold run fills the cache)."""
     if not (first or full):
         raise ValueError("measure_training_speed needs first=True or full=True (nothing to time)")
@@ -67,8 +68,9 @@ def measure_training_speed(env: str, policy: str, seeds: list[int], iterations: 
     base = ["--env", env, "--policy", policy, "--preset", preset,
             "--seeds", *map(str, seeds)]
     work_dir.mkdir(parents=True, exist_ok=True)
-    full_t = first_cold = resumed = None
+    full_t = first_cold = None
     warm: list[dict[str, Any]] = []
+    resumes: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(dir=work_dir) as tmp:
         cache = os.path.join(tmp, "cache")
         if full:
@@ -80,22 +82,32 @@ def measure_training_speed(env: str, policy: str, seeds: list[int], iterations: 
                                      f"{tmp}/first_cold")
             warm = [timed_train([*one, "--out", f"{tmp}/warm{i}"], cache, f"{tmp}/warm{i}")
                     for i in range(warm_runs)]
-            resumed = _timed_resume(base, cache, tmp)
-    median = sorted(warm, key=lambda t: t["first_chunk_s"])[(len(warm) - 1) // 2] if warm else None
+            resumes = _timed_resumes(base, cache, tmp, warm_runs)
     return {"env": env, "policy": policy, "seeds": list(seeds), "iterations": iterations,
-            "preset": preset, "full": full_t, "first_cold": first_cold, "first_warm": median,
-            "resumed": resumed, **({"first_warm_runs": warm} if len(warm) > 1 else {})}
+            "preset": preset, "full": full_t, "first_cold": first_cold,
+            "first_warm": _median(warm), "resumed": _median(resumes),
+            **({"first_warm_runs": warm, "resumed_runs": resumes} if len(warm) > 1 else {})}
 
 
-def _timed_resume(base: list[str], cache: str, tmp: str) -> dict[str, Any]:
-    """:func:`timed_train` of a resumed command with the warm cache: a run of two iterations
-    (chunks and checkpoints of one) loses its last checkpoint and the same command continues
-    it with ``--resume`` (``first_chunk_s``: launch to its one remaining iteration done)."""
+def _median(runs: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The run of median ``first_chunk_s`` (the lower one of an even count), None if none."""
+    ordered = sorted(runs, key=lambda t: t["first_chunk_s"])
+    return ordered[(len(ordered) - 1) // 2] if ordered else None
+
+
+def _timed_resumes(base: list[str], cache: str, tmp: str, runs: int) -> list[dict[str, Any]]:
+    """:func:`timed_train` of ``runs`` resumed commands with the warm cache: a run of two
+    iterations (chunks and checkpoints of one) loses its last checkpoint and the same command
+    continues it with ``--resume`` (``first_chunk_s``: launch to its one remaining iteration
+    done), as often as asked (each resume rewrites the checkpoint the next one loses)."""
     two = [*base, "--iterations", "2", "--log-every", "1", "--checkpoint-every", "1",
            "--keep-checkpoints", "0", "--out", f"{tmp}/resumed"]
     timed_train(two, cache)
-    shutil.rmtree(os.path.join(tmp, "resumed", "checkpoints", "2"))
-    return timed_train([*two, "--resume"], cache, f"{tmp}/resumed")
+    out = []
+    for _ in range(runs):
+        shutil.rmtree(os.path.join(tmp, "resumed", "checkpoints", "2"))
+        out.append(timed_train([*two, "--resume"], cache, f"{tmp}/resumed"))
+    return out
 
 
 def _row(r: dict[str, Any]) -> list[str]:

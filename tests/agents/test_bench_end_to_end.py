@@ -10,6 +10,7 @@ import pytest
 from agents.bench.end_to_end import (
     COLUMNS,
     _kept,
+    _median,
     measure_training_speed,
     run_training_speed,
     timed_train,
@@ -88,3 +89,12 @@ def test_training_speed_measures_real_runs(tmp_path):
     assert all(raw[k]["wall_s"] > raw[k]["compile_s"] >= 0
                for k in ("full", "first_cold", "first_warm", "resumed"))
     assert 0 < raw["first_warm"]["first_chunk_s"] < raw["first_warm"]["wall_s"]
+
+
+def test_the_median_run_is_the_middle_one_by_first_iteration_time():
+    """The repeated and the resumed command report the run of median launch-to-first-iteration
+    time (the lower middle of an even count); nothing measured gives None."""
+    runs = [{"first_chunk_s": t, "wall_s": 10 + t} for t in (5.5, 4.2, 4.9, 6.1)]
+    assert _median(runs)["first_chunk_s"] == 4.9
+    assert _median(runs[:3])["first_chunk_s"] == 4.9
+    assert _median([]) is None
