@@ -255,6 +255,11 @@ class _Chunk(NamedTuple):
     metrics: dict[str, Any]
     finite: Any
 
+    @property
+    def end(self) -> int:
+        """The iteration count after the chunk."""
+        return self.start + self.n
+
 
 def _launch(program: Program, spec: RunSpec, state: TrainState, start: int) -> _Chunk | None:
     """Dispatch the chunk that follows iteration ``start`` (None when the run is complete);
@@ -284,8 +289,7 @@ def _train_chunks(program: Program, spec: RunSpec, state: TrainState, done: int,
     try:
         chunk = _launch(program, spec, state, done)
         while chunk is not None:
-            ahead = None if serial else _launch(program, spec, chunk.state,
-                                                chunk.start + chunk.n)
+            ahead = None if serial else _launch(program, spec, chunk.state, chunk.end)
             metrics = to_host(chunk.metrics)  # blocks until the chunk is done
             t1 = time.perf_counter()
             dt = t1 - t0 - (program.compile_seconds - compiled)
@@ -293,8 +297,8 @@ def _train_chunks(program: Program, spec: RunSpec, state: TrainState, done: int,
             params = to_host(chunk.state.params) if serial else chunk.state.params
             diverged = _divergence(runs, metrics, params, chunk.start, chunk.finite)
             if diverged is None:
-                state, done = chunk.state, chunk.start + chunk.n
-            log.append(metrics, chunk.start, chunk.start + chunk.n, dt)
+                state, done = chunk.state, chunk.end
+            log.append(metrics, chunk.start, chunk.end, dt)
             if diverged is not None:
                 log.close_bar()
                 raise _divergence_error(diverged, saver.ckpt_dir)
