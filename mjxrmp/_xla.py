@@ -131,6 +131,19 @@ def compile_cache_dir(environ: Mapping[str, str] | None = None) -> str | None:
     return os.path.join(base, "mjxrmp", "jax")
 
 
+def child_cache_environ(cache_dir: str, environ: Mapping[str, str] | None = None
+                        ) -> dict[str, str]:
+    """``environ`` (default ``os.environ``) for a child process whose compile cache is
+    ``cache_dir``: ``MJXRMP_COMPILE_CACHE`` set to it and ``JAX_COMPILATION_CACHE_DIR`` dropped.
+    A script's :func:`configure_compile_cache` exports JAX's variable to its children, and
+    :func:`compile_cache_dir` lets that variable win, so without the drop a child would share
+    its parent's cache (a benchmark's "cold" run would find the programs of an earlier one)."""
+    env = dict(os.environ if environ is None else environ)
+    env.pop(JAX_CACHE_DIR_ENV, None)
+    env[CACHE_ENV] = cache_dir
+    return env
+
+
 def configure_compile_cache() -> str | None:
     """Turn JAX's persistent compilation cache on in :func:`compile_cache_dir`; return that path.
 

@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from mjxrmp._xla import child_cache_environ
 from mjxrmp.config import check_int
 from mjxrmp.results.summary import earlier_raw, run_record, slug, write_study
 
@@ -27,12 +28,13 @@ _TIMES = re.compile(r"compile ([\d.]+) s, training ([\d.]+) s, ([\d.e+]+) env st
 def timed_train(args: list[str], cache_dir: str, out_dir: str | None = None
                 ) -> dict[str, Any]:
     """Run ``scripts/train.py ARGS --no-progress`` in a fresh process with the compile cache in
-    ``cache_dir``: ``wall_s`` from launch to exit, ``first_chunk_s`` from launch to the first
-    write of ``out_dir/metrics.csv`` when ``out_dir`` (the run's ``--out``) is given and the run
-    trains one chunk (the file is rewritten after every chunk), and, from its summary line,
-    ``compile_s``, ``train_s`` and ``steps_per_s``. A failing command raises ``RuntimeError``
+    ``cache_dir`` and no other (:func:`mjxrmp._xla.child_cache_environ`): ``wall_s`` from launch
+    to exit, ``first_chunk_s`` from launch to the first write of ``out_dir/metrics.csv`` when
+    ``out_dir`` (the run's ``--out``) is given and the run trains one chunk (the file is
+    rewritten after every chunk), and, from its summary line, ``compile_s``, ``train_s`` and
+    ``steps_per_s``. A failing command raises ``RuntimeError``
     with its last output lines."""
-    env = {**os.environ, "MJXRMP_COMPILE_CACHE": cache_dir}
+    env = child_cache_environ(cache_dir)
     cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), *args, "--no-progress"]
     launched = time.time()
     t0 = time.perf_counter()

@@ -188,3 +188,15 @@ def test_the_installed_jaxlib_accepts_the_scripts_flags():
                          capture_output=True, text=True, timeout=300, check=True)
     total, flags = out.stdout.strip().split(" ", 1)
     assert float(total) == 6.0 and _xla.GPU_FLAG in flags.split()
+
+
+def test_a_child_given_a_cache_uses_it_and_not_its_parents(tmp_path):
+    """A script exports JAX's cache variable (configure_compile_cache), which compile_cache_dir
+    lets win: the environment for a child with its own cache drops it, so a benchmark's cold
+    run in a fresh directory does not find an earlier run's programs in the parent's cache."""
+    parent = {_xla.JAX_CACHE_DIR_ENV: str(tmp_path / "parent"), "KEEP": "1"}
+    assert _xla.compile_cache_dir(parent) is None  # JAX would use the parent's directory
+    child = _xla.child_cache_environ(str(tmp_path / "fresh"), parent)
+    assert _xla.compile_cache_dir(child) == str(tmp_path / "fresh")
+    assert child["KEEP"] == "1" and _xla.JAX_CACHE_DIR_ENV not in child
+    assert parent[_xla.JAX_CACHE_DIR_ENV] == str(tmp_path / "parent")  # the caller's is kept
