@@ -32,8 +32,7 @@ def timed_train(args: list[str], cache_dir: str, out_dir: str | None = None
     to exit, ``first_chunk_s`` from launch to the first write of ``out_dir/metrics.csv`` when
     ``out_dir`` (the run's ``--out``) is given and the run trains one chunk (the file is
     rewritten after every chunk), and, from its summary line, ``compile_s``, ``train_s`` and
-    ``steps_per_s``. A failing command raises ``RuntimeError``
-    with its last output lines."""
+    ``steps_per_s``. A failing command raises ``RuntimeError`` with its last output lines."""
     env = child_cache_environ(cache_dir)
     cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), *args, "--no-progress"]
     launched = time.time()
