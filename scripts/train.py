@@ -76,15 +76,12 @@ if __name__ == "__main__":
 import envs  # noqa: E402
 from agents.ppo import KINDS, make_mesh  # noqa: E402
 from agents.ppo.hparams import SWEEPABLE  # noqa: E402
+from agents.run.directory import RunDirectoryInUseError  # noqa: E402
 from agents.run.distributed import initialize, mesh_devices  # noqa: E402
 from agents.run.spec import PRESETS, RunSpec, parse_overrides, preset  # noqa: E402
 from agents.run.sweep import run_sweep  # noqa: E402
 from agents.run.sweep_spec import SweepSpec, parse_grid  # noqa: E402
-from agents.run.training import (  # noqa: E402
-    RunDirectoryInUseError,
-    result_summary,
-    run_training,
-)
+from agents.run.training import result_summary, run_training  # noqa: E402
 from mjxrmp.divergence import EXIT_DIVERGED, DivergenceError  # noqa: E402
 
 

@@ -3,6 +3,7 @@
 * :mod:`agents.run.spec` — :class:`~agents.run.spec.RunSpec` and the PPO presets;
 * :mod:`agents.run.program` — the compiled, seed-vmapped program of a spec and its timing split;
 * :mod:`agents.run.training` — :func:`~agents.run.training.run_training`, the chunked loop;
+* :mod:`agents.run.directory` — a run directory's lock, its checks and ``run.json``;
 * :mod:`agents.run.sweep_spec` / :mod:`agents.run.sweep` — packed sweeps: setups × policy kinds ×
   hyper-parameters × seeds in one program, what a sweep is and how it trains;
 * :mod:`agents.run.logs` — progress bar, ``metrics.csv``, TensorBoard;

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import Future
@@ -41,6 +42,8 @@ class Program:
     inits: dict[tuple[int, bool], Any] = dataclasses.field(default_factory=dict)
     #: Chunk programs being compiled in a background thread (:meth:`compile_ahead`), by length.
     ahead: dict[int, Future] = dataclasses.field(default_factory=dict)
+    #: Set once such a chunk is lowered (or its thread failed): :meth:`initial_state` waits.
+    lowering: list[threading.Event] = dataclasses.field(default_factory=list)
     compile_seconds: float = 0.0
     #: What shapes the program (JSON data), for :mod:`agents.run.program_cache`; None keeps
     #: nothing between processes (sharded programs).
@@ -61,30 +64,46 @@ class Program:
             self.compile_seconds += time.perf_counter() - t0
         return self.executables[key]
 
-    def _compile_run(self, state: Any, n: int) -> Any:
-        return self._from_artifact(lambda s: self.run(s, n), (state,), {"chunk": n}) or (
-            self.run.lower(state, n).compile())
+    def _compile_run(self, state: Any, n: int, lowered: Callable[[], None] = lambda: None
+                     ) -> Any:
+        run = self._from_artifact(lambda s: self.run(s, n), (state,), {"chunk": n},
+                                  lowered=lowered)
+        if run is None:
+            program = self.run.lower(state, n)
+            lowered()
+            run = program.compile()
+        return run
 
     def compile_ahead(self, keys: jax.Array, n: int) -> Future:
         """Start compiling ``run(·, n)`` for the state ``init(keys)`` returns in a background
         thread (from :meth:`state_shapes`), so that it overlaps the compile and run of ``init``
         itself (XLA compiles without the GIL: 3-link thesis chunk, H200, 32.8 s → 25.8 s for
-        both; docs/design.md §5.6). :meth:`executable` waits for it; an error in the thread is
-        raised there. Not for sharded programs (the shapes carry no sharding)."""
-        def compile_chunk() -> None:
-            shapes = self.state_shapes(keys)
-            self.executables[_chunk_key(shapes, n)] = self._compile_run(shapes, n)
+        both; docs/design.md §5.6). Tracing ``init`` waits until the chunk is lowered, so that
+        the two traces do not share the GIL (the chunk's is the longer path). :meth:`executable`
+        waits for it; an error in the thread is raised there. Not for sharded programs (the
+        shapes carry no sharding)."""
+        lowered = threading.Event()
 
+        def compile_chunk() -> None:
+            try:
+                shapes = self.state_shapes(keys)
+                self.executables[_chunk_key(shapes, n)] = self._compile_run(shapes, n,
+                                                                            lowered.set)
+            finally:
+                lowered.set()
+
+        self.lowering.append(lowered)
         self.ahead[n] = in_background(compile_chunk, f"compile chunk {n}")
         return self.ahead[n]
 
     def _from_artifact(self, fn: Callable, args: tuple, what: dict[str, Any],
-                       compiler_options: dict[str, Any] | None = None) -> Callable | None:
+                       compiler_options: dict[str, Any] | None = None,
+                       lowered: Callable[[], None] | None = None) -> Callable | None:
         """``fn`` compiled from its exported program (:func:`agents.run.program_cache.exported`),
         or None for a sharded or multi-process program."""
         if self.description is None or jax.process_count() > 1:
             return None
-        return exported(fn, args, {**self.description, **what}, compiler_options)
+        return exported(fn, args, {**self.description, **what}, compiler_options, lowered)
 
     def initial_state(self, keys: jax.Array, scenes: dict[str, jax.Array] | None = None
                       ) -> TrainState:
@@ -98,6 +117,8 @@ class Program:
         n = (keys.shape[0], scenes is not None)
         if n not in self.inits:
             t0 = time.perf_counter()
+            for chunk_lowered in self.lowering:  # compile_ahead's trace first
+                chunk_lowered.wait()
             options = run_once_compiler_options(jax.default_backend())
             what = {"program": "init"} if scenes is None else {"program": "init_scenes"}
             init = self._from_artifact(self.init, args, what, options)

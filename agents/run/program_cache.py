@@ -93,13 +93,17 @@ def _read(path: Path) -> tuple[Any, bytes, dict[str, Any]]:
             dict(record["compiler_options"]))
 
 
-def _compile(exp: Any, options: dict[str, Any]) -> Any:
+def _compile(exp: Any, options: dict[str, Any],
+             lowered: Callable[[], None] | None = None) -> Any:
     """The exported program ``exp`` compiled with XLA ``options`` (answered by the persistent
     compilation cache on a repeat), lowered from its own input shapes, so that a compile ahead
     of use (:func:`prefetch`) and one at use look up the same cache entry, whatever devices the
-    arguments are on."""
+    arguments are on. ``lowered()`` is called between lowering and XLA's compile."""
     specs = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in exp.in_avals]
-    return jax.jit(exp.call).lower(specs).compile(compiler_options=options or None)
+    program = jax.jit(exp.call).lower(specs)
+    if lowered is not None:
+        lowered()
+    return program.compile(compiler_options=options or None)
 
 
 def _calling(compiled: Any, out_tree: Any) -> Callable[..., Any]:
@@ -151,13 +155,15 @@ def _ahead(path: Path) -> Callable[..., Any] | None:
 
 
 def exported(fn: Callable[..., Any], args: tuple[Any, ...], description: dict[str, Any],
-             compiler_options: dict[str, Any] | None = None) -> Callable[..., Any] | None:
+             compiler_options: dict[str, Any] | None = None,
+             lowered: Callable[[], None] | None = None) -> Callable[..., Any] | None:
     """``fn`` for arguments shaped like ``args`` (any pytrees of arrays), compiled (with XLA
     ``compiler_options``, part of the key) from its exported program: compiled ahead by
     :func:`prefetch`, or read from the artifact directory when there, else exported and
     written there (atomically, with the output's tree structure and the options). The compile
     itself is answered by the persistent compilation cache on a repeat. None when that cache is
-    off or ``fn`` cannot be exported (with a warning; the caller then compiles it as usual)."""
+    off or ``fn`` cannot be exported (with a warning; the caller then compiles it as usual).
+    ``lowered()`` is called when what is left is XLA's compile (which does not hold the GIL)."""
     folder = artifact_dir()
     if folder is None:
         return None
@@ -178,7 +184,7 @@ def exported(fn: Callable[..., Any], args: tuple[Any, ...], description: dict[st
             warnings.warn(f"unreadable program artifact {path} ({type(e).__name__}: {e}); "
                           "exporting it again", stacklevel=2)
     if loaded is not None:
-        return _calling(_compile(loaded[0], options), loaded[1])
+        return _calling(_compile(loaded[0], options, lowered), loaded[1])
     box: dict[str, Any] = {}
 
     def flat(xs):
@@ -199,7 +205,7 @@ def exported(fn: Callable[..., Any], args: tuple[Any, ...], description: dict[st
     folder.mkdir(parents=True, exist_ok=True)
     atomic_write(path, pickle.dumps({"exported": data, "out_tree": pickle.dumps(box["out_tree"]),
                                      "compiler_options": options}))
-    return _calling(_compile(exp, options), box["out_tree"])
+    return _calling(_compile(exp, options, lowered), box["out_tree"])
 
 
 def command_label(argv: Sequence[str], valued: Collection[str] = (),

@@ -40,19 +40,17 @@ import numpy as np
 from agents.ppo import TrainState
 from agents.run import checkpoint
 from agents.run.curves import episode_window
+from agents.run.directory import check_dir, lock_run_directory, write_spec
 from agents.run.logs import ProgressBar, summary_line
 from agents.run.program import Program, build, seed_keys
 from agents.run.sweep_spec import SweepSpec, row_scenes, row_values
 from agents.run.training import (
     RunResult,
-    _check_dir,
     _history_from_json,
     _plot,
     _RunLog,
     _Saver,
     _train_chunks,
-    _write_spec,
-    lock_run_directory,
 )
 from mjxrmp.atomic import atomic_write
 
@@ -224,7 +222,7 @@ def run_sweep(sweep: SweepSpec, out_dir: str, resume: bool = False, progress: bo
             os.makedirs(d, exist_ok=True)
             if point_dirs is not None:
                 held.enter_context(lock_run_directory(d))
-        ckpt_dirs = [_check_dir(d, resume) for d in dirs]
+        ckpt_dirs = [check_dir(d, resume) for d in dirs]
         program = build(sweep.program_spec())
         compile_before = program.compile_seconds
         state, histories, done = _initial_state(program, sweep, dirs, resume)
@@ -232,7 +230,7 @@ def run_sweep(sweep: SweepSpec, out_dir: str, resume: bool = False, progress: bo
                      json.dumps(sweep.to_json(), indent=1).encode())
         logs = []
         for d, (_, spec), hist in zip(dirs, points, histories, strict=True):
-            _write_spec(spec, d)
+            write_spec(spec, d)
             logs.append(_RunLog(spec, d, hist, None))
         base = sweep.base
         total = base.ppo.total_iterations

@@ -6,8 +6,9 @@ progress, CSV/TensorBoard logs, learning-curve PNGs and resumable orbax checkpoi
 * ``run.json`` — the :class:`agents.run.spec.RunSpec` (written once the directory and, on
   resume, the checkpoint have been checked against it);
 * ``.lock`` — held (``fcntl.flock``) by the process training into the directory, with its id;
-  a second process on the same directory is refused (:class:`RunDirectoryInUseError`); the
-  operating system releases the lock when the process ends, ``kill -9`` included;
+  a second process on the same directory is refused
+  (:class:`agents.run.directory.RunDirectoryInUseError`); the operating system releases the
+  lock when the process ends, ``kill -9`` included;
 * ``metrics.csv`` — one row per (iteration, seed): every PPO metric (:mod:`agents.ppo.train`) plus
   ``env_steps`` (:mod:`agents.run.logs`);
 * ``tb/`` — TensorBoard event files (seed mean and per seed);
@@ -41,13 +42,11 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import fcntl
-import json
 import math
 import os
 import sys
 import time
-from collections.abc import Iterator
+from concurrent.futures import Future
 from typing import IO, Any, NamedTuple
 
 import jax
@@ -57,6 +56,12 @@ from jax.sharding import Mesh
 from agents.ppo import Trainer, TrainState
 from agents.run import checkpoint
 from agents.run.curves import plot_curves
+from agents.run.directory import (
+    RunDirectoryInUseError,
+    check_dir,
+    lock_run_directory,
+    write_spec,
+)
 from agents.run.distributed import agree, barrier, is_multiprocess, is_writer, place, to_host
 from agents.run.logs import (
     ProgressBar,
@@ -67,16 +72,9 @@ from agents.run.logs import (
     write_csv,
 )
 from agents.run.program import Program, build, seed_keys
+from agents.run.program_cache import in_background
 from agents.run.spec import RunSpec
-from mjxrmp.atomic import atomic_write
 from mjxrmp.divergence import DivergenceError, all_finite, guard_finite_tree
-
-#: The lock file of a run directory.
-LOCK_FILE = ".lock"
-
-
-class RunDirectoryInUseError(RuntimeError):
-    """A run directory another process is training into."""
 
 
 @dataclasses.dataclass
@@ -100,45 +98,6 @@ def _history_to_json(history: dict[str, np.ndarray]) -> dict[str, list]:
 def _history_from_json(d: dict[str, list]) -> dict[str, np.ndarray]:
     return {k: np.array([[np.nan if x is None else x for x in row] for row in v], np.float64)
             for k, v in d.items()}
-
-
-@contextlib.contextmanager
-def lock_run_directory(out_dir: str) -> Iterator[None]:
-    """Hold an exclusive ``fcntl.flock`` on ``<out_dir>/.lock`` (this process's id written in
-    it) for the ``with`` block; :class:`RunDirectoryInUseError` naming the holder's process
-    id if another process holds it. The lock goes with the process (``kill -9`` included)."""
-    fd = os.open(os.path.join(out_dir, LOCK_FILE), os.O_RDWR | os.O_CREAT, 0o666)
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "(unknown id)"
-            raise RunDirectoryInUseError(
-                f"{out_dir} is in use by process {holder} (another run trains into it); wait "
-                "for it to end or choose another output directory") from None
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-        yield
-    finally:
-        os.close(fd)
-
-
-def _check_dir(out_dir: str, resume: bool) -> str:
-    """Check ``out_dir`` against ``resume`` (a fresh run needs a directory without checkpoints,
-    a resumed one a checkpoint); the checkpoint directory."""
-    ckpt_dir = os.path.join(out_dir, "checkpoints")
-    has_ckpt = checkpoint.latest_step(ckpt_dir) is not None
-    if has_ckpt and not resume:
-        raise FileExistsError(f"{out_dir} already holds a run; pass resume=True (--resume) to "
-                              "continue it or choose another output directory")
-    if resume and not has_ckpt:
-        raise FileNotFoundError(f"resume=True but there is no checkpoint in {ckpt_dir}")
-    return ckpt_dir
-
-
-def _write_spec(spec: RunSpec, out_dir: str) -> None:
-    """``run.json`` (atomically)."""
-    atomic_write(os.path.join(out_dir, "run.json"), json.dumps(spec.to_json(), indent=1).encode())
 
 
 def _initial_state(program: Program, spec: RunSpec, ckpt_dir: str, resume: bool,
@@ -261,15 +220,33 @@ class _Chunk(NamedTuple):
         return self.start + self.n
 
 
+def _chunk_length(spec: RunSpec, start: int) -> int:
+    """How many iterations the chunk after iteration ``start`` runs (0 when the run is done)."""
+    return max(0, min(spec.log_every, spec.ppo.total_iterations - start))
+
+
 def _launch(program: Program, spec: RunSpec, state: TrainState, start: int) -> _Chunk | None:
     """Dispatch the chunk that follows iteration ``start`` (None when the run is complete);
-    JAX returns before the device has run it (docs/design.md §5.7)."""
-    n = min(spec.log_every, spec.ppo.total_iterations - start)
-    if n <= 0:
+    on the CPU JAX returns before the device has run it (docs/design.md §5.7)."""
+    n = _chunk_length(spec, start)
+    if n == 0:
         return None
     new_state, metrics = program.executable(state, n)(state)
     finite = None if is_multiprocess() else all_finite(new_state.params)
     return _Chunk(start, n, new_state, metrics, finite)
+
+
+def _launch_ahead(program: Program, spec: RunSpec, state: TrainState, start: int) -> Future:
+    """:func:`_launch` from a thread of its own, so that the caller can log and checkpoint the
+    previous chunk meanwhile: on a GPU the call returns only once the device has run nearly the
+    whole chunk (Franka thesis chunk on an H200: after 11.5 s of 11.6 s; presumably XLA's host
+    reading loop conditions back), which on the caller's thread would serialise the host's work
+    with the device's (docs/design.md §5.7). A compile the chunk needs happens here, on the
+    caller's thread, so that its time is counted in the chunk it delays."""
+    n = _chunk_length(spec, start)
+    if n:
+        program.executable(state, n)
+    return in_background(lambda: _launch(program, spec, state, start), f"chunk from {start}")
 
 
 def _train_chunks(program: Program, spec: RunSpec, state: TrainState, done: int,
@@ -279,17 +256,18 @@ def _train_chunks(program: Program, spec: RunSpec, state: TrainState, done: int,
     checkpointing every ``checkpoint_every`` and at the end; on Ctrl-C checkpoint what is done
     and re-raise; on a non-finite metric or parameter log the chunk and raise
     :class:`DivergenceError` (without checkpointing it). In one process the next chunk is
-    dispatched before this one's results are read, so the device runs it while the host logs
-    and checkpoints (a diverged chunk's successor is discarded). Returns ``(state, iterations
-    done, training seconds)``: the wall time from the first dispatch to the last chunk read,
-    less compiles. ``runs`` names the rows of the vmapped axis (default: the seeds)."""
+    dispatched (from a thread: :func:`_launch_ahead`) before this one's results are read, so
+    the device runs it while the host logs and checkpoints (a diverged chunk's successor is
+    discarded). Returns ``(state, iterations done, training seconds)``: the wall time from the
+    first dispatch to the last chunk read, less compiles. ``runs`` names the rows of the
+    vmapped axis (default: the seeds)."""
     train_s, diverged, serial = 0.0, None, is_multiprocess()
     runs = runs or [f"seed {s}" for s in spec.seeds]
     t0, compiled = time.perf_counter(), program.compile_seconds
     try:
         chunk = _launch(program, spec, state, done)
         while chunk is not None:
-            ahead = None if serial else _launch(program, spec, chunk.state, chunk.end)
+            ahead = None if serial else _launch_ahead(program, spec, chunk.state, chunk.end)
             metrics = to_host(chunk.metrics)  # blocks until the chunk is done
             t1 = time.perf_counter()
             dt = t1 - t0 - (program.compile_seconds - compiled)
@@ -304,7 +282,7 @@ def _train_chunks(program: Program, spec: RunSpec, state: TrainState, done: int,
                 raise _divergence_error(diverged, saver.ckpt_dir)
             if done % spec.checkpoint_every == 0 or done == spec.ppo.total_iterations:
                 saver.save(done, state, log.history)
-            chunk = _launch(program, spec, state, done) if serial else ahead
+            chunk = _launch(program, spec, state, done) if serial else ahead.result()
     except KeyboardInterrupt:
         log.close_bar()
         if done > 0 and diverged is None and not serial:
@@ -348,7 +326,7 @@ def run_training(spec: RunSpec, out_dir: str, resume: bool = False, progress: bo
         try:
             if is_writer():
                 held.enter_context(lock_run_directory(out_dir))
-            ckpt_dir = _check_dir(out_dir, resume)
+            ckpt_dir = check_dir(out_dir, resume)
         except (RunDirectoryInUseError, FileExistsError, FileNotFoundError) as e:
             refused = e
         agree(refused, f"training into {out_dir}")
@@ -361,7 +339,7 @@ def run_training(spec: RunSpec, out_dir: str, resume: bool = False, progress: bo
                                               mesh is not None or is_multiprocess())
         writer, total = is_writer(), spec.ppo.total_iterations
         if writer:
-            _write_spec(spec, out_dir)
+            write_spec(spec, out_dir)
         if done >= total and writer:
             print(f"run already has {done} >= {total} iterations", file=stream or sys.stderr)
         log = _RunLog(spec, out_dir, history,
@@ -388,5 +366,4 @@ def result_summary(result: RunResult) -> str:
             f"training {result.train_seconds:.1f} s, {rate:.3g} env steps/s")
 
 
-__all__ = ["LOCK_FILE", "RunDirectoryInUseError", "RunResult",
-           "lock_run_directory", "result_summary", "run_training"]
+__all__ = ["RunResult", "result_summary", "run_training"]

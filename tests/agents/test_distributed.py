@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from script_main import load_script
 
+from agents.run.directory import lock_run_directory
 from agents.run.distributed import (
     agree,
     barrier,
@@ -27,7 +28,6 @@ from agents.run.distributed import (
 )
 from agents.run.loading import load_run
 from agents.run.logs import read_csv
-from agents.run.training import lock_run_directory
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 

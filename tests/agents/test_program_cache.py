@@ -17,7 +17,7 @@ from script_main import load_script
 
 from agents.run import program as program_module
 from agents.run import program_cache
-from agents.run.program import build, seed_keys
+from agents.run.program import Program, build, seed_keys
 from agents.run.program_cache import (
     artifact_dir,
     command_label,
@@ -223,15 +223,28 @@ def test_the_device_is_started_once_per_process(new_process, monkeypatch):
         start_device().result(timeout=60)
 
 
-def test_a_chunk_compiled_ahead_is_the_one_the_run_uses(cache_dir):
-    """compile_ahead() compiles the chunk for init's shapes while init compiles; executable()
-    takes that compile (nothing compiled twice), and it trains exactly like a direct compile."""
+def test_a_chunk_compiled_ahead_is_the_one_the_run_uses(cache_dir, monkeypatch):
+    """compile_ahead() compiles the chunk for init's shapes while init compiles, init's trace
+    waiting until the chunk is lowered; executable() takes that compile (nothing compiled
+    twice), and it trains exactly like a direct compile."""
     program_module._program.cache_clear()
+    order, compile_run, from_artifact = [], Program._compile_run, Program._from_artifact
+
+    def noting_compile_run(self, state, n, lowered=lambda: None):
+        return compile_run(self, state, n, lambda: (order.append("chunk lowered"), lowered()))
+
+    def noting_from_artifact(self, fn, args, what, *rest, **named):
+        order.extend(["init traced"] if what.get("program") == "init" else [])
+        return from_artifact(self, fn, args, what, *rest, **named)
+
+    monkeypatch.setattr(Program, "_compile_run", noting_compile_run)
+    monkeypatch.setattr(Program, "_from_artifact", noting_from_artifact)
     program = build(SPEC)
     keys = seed_keys(SPEC.seeds)
     job = program.compile_ahead(keys, 1)
     state = program.initial_state(keys)
     chunk = program.executable(state, 1)
+    assert order == ["chunk lowered", "init traced"]
     assert job.done() and not program.ahead and len(program.executables) == 1
     assert program.executable(state, 1) is chunk
     direct = program.run.lower(state, 1).compile()(state)

@@ -12,6 +12,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import threading
 
 import jax
 import jax.numpy as jnp
@@ -144,27 +145,29 @@ def test_interrupted_run_keeps_completed_iterations(uninterrupted, tmp_path):
     assert resumed.history["mean_reward"].shape == (2, 6)
 
 
-def test_next_chunk_is_dispatched_before_the_host_logs_this_one(uninterrupted, tmp_path,
-                                                                 monkeypatch):
-    """The device runs chunk k+1 while the host logs and checkpoints chunk k: when chunk k is
-    logged, chunk k+1 has already been dispatched (the last chunk has no successor), and the
-    run still equals the one of the ``uninterrupted`` fixture."""
-    dispatched, seen = [], []
+def test_host_logs_a_chunk_while_the_next_one_is_being_dispatched(uninterrupted, tmp_path,
+                                                                     monkeypatch):
+    """The device runs chunk k+1 while the host logs and checkpoints chunk k, even where
+    dispatching a chunk blocks until the device has run it (as on a GPU): here the dispatch of
+    chunk k+1 waits until chunk k is being logged, which would never happen if the two were done
+    one after the other on one thread. The run still equals the one of the ``uninterrupted``
+    fixture."""
+    logging, waited = {}, []
     launch, append = training._launch, training._RunLog.append
 
-    def counting_launch(*args):
-        chunk = launch(*args)
-        dispatched.extend([] if chunk is None else [chunk.start])
-        return chunk
+    def blocking_launch(program, spec, state, start):
+        if 0 < start < spec.ppo.total_iterations:  # chunk k+1 waits for chunk k's logging
+            waited.append(logging.setdefault(start - 2, threading.Event()).wait(timeout=60))
+        return launch(program, spec, state, start)
 
     def recording_append(self, metrics, start, done, seconds):
-        seen.append((start, list(dispatched)))
+        logging.setdefault(start, threading.Event()).set()
         return append(self, metrics, start, done, seconds)
 
-    monkeypatch.setattr(training, "_launch", counting_launch)
+    monkeypatch.setattr(training, "_launch", blocking_launch)
     monkeypatch.setattr(training._RunLog, "append", recording_append)
     result = run_training(SPEC, str(tmp_path / "run"), progress=False)
-    assert seen == [(0, [0, 2]), (2, [0, 2])]
+    assert waited == [True]  # SPEC: 4 iterations in chunks of 2
     _assert_tree_close(result.state.params, uninterrupted[0].state.params, rtol=0, atol=0)
 
 

@@ -17,10 +17,11 @@ import pytest
 
 from agents.ppo import PPOConfig
 from agents.run.checkpoint import IncompatibleCheckpointError
+from agents.run.directory import LOCK_FILE, RunDirectoryInUseError
 from agents.run.loading import checkpoint_steps
 from agents.run.logs import improvement_summary
 from agents.run.spec import RunSpec
-from agents.run.training import LOCK_FILE, RunDirectoryInUseError, run_training
+from agents.run.training import run_training
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -32,7 +33,7 @@ SPEC = RunSpec(env="three_link/env3", policy="nn", seeds=(0,), log_every=1, chec
 # A second process that holds the run directory's lock until it is killed.
 HOLDER = textwrap.dedent("""
     import sys, time
-    from agents.run.training import lock_run_directory
+    from agents.run.directory import lock_run_directory
     with lock_run_directory(sys.argv[1]):
         print("LOCKED", flush=True)
         time.sleep(300)
