@@ -141,12 +141,15 @@ def exported_shapes(args: tuple[Any, ...], description: dict[str, Any],
                                          for a in exp.out_avals])
 
 
-def _ahead(path: Path) -> Callable[..., Any] | None:
-    """The program of ``path`` compiled ahead by :func:`prefetch` (waiting for it), or None
-    when it was not prefetched or that failed (the caller then reads it as usual)."""
+def _ahead(path: Path, lowered: Callable[[], None] | None) -> Callable[..., Any] | None:
+    """The program of ``path`` compiled ahead by :func:`prefetch` (waiting for it, after
+    calling ``lowered()``: nothing is left to trace), or None when it was not prefetched or
+    that failed (the caller then reads it as usual)."""
     job = _AHEAD.pop(path, None)
     if job is None:
         return None
+    if lowered is not None:
+        lowered()
     try:
         compiled, tree = job.result()
         return _calling(compiled, pickle.loads(tree))
@@ -172,7 +175,7 @@ def exported(fn: Callable[..., Any], args: tuple[Any, ...], description: dict[st
     path = _artifact(folder, description, args, options)
     if path.name not in _USED:
         _USED.append(path.name)
-    ahead = _ahead(path)
+    ahead = _ahead(path, lowered)
     if ahead is not None:
         return ahead
     loaded = None
