@@ -60,7 +60,7 @@ def make_rollout(env: Env, nets: PPONetworks, num_steps: int, constrain: Callabl
     def act(carry, key, advance):
         params, stats, state, ep_ret, ep_col, weight = carry
         obs = state.obs
-        features = None if weight is None else nets.policy_features(obs, weight)
+        features = nets.policy_features(obs, weight)
         mean, log_std = nets.policy_apply(params["policy"], obs, stats, features)
         action = mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape, mean.dtype)
         value = nets.value_apply(params["value"], obs, stats)
@@ -74,7 +74,7 @@ def make_rollout(env: Env, nets: PPONetworks, num_steps: int, constrain: Callabl
         ep_col = jnp.maximum(ep_col, collision.astype(jnp.float32))
         tr = Transition(obs, action, gaussian_log_prob(action, mean, log_std), value, reward,
                         done, state.info["truncation"].astype(jnp.float32), ep_ret, ep_col,
-                        success)
+                        success, features)
         ep_ret = jnp.where(done > 0, 0.0, ep_ret)
         ep_col = jnp.where(done > 0, 0.0, ep_col)
         return (params, stats, state, ep_ret, ep_col, weight), tr, extra

@@ -24,6 +24,9 @@ class Transition(NamedTuple):
     episode_return: jax.Array  # running return including this step (read where dones)
     episode_collided: jax.Array
     success: jax.Array  # the environment's "success" metric of this step (0 if it has none)
+    #: What the policy computed from the state alone (its ``precompute``; None for a policy
+    #: without one), kept for the update (docs/design.md §5.7).
+    policy_features: Any = None
 
 
 class TrainState(NamedTuple):

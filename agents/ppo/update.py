@@ -1,8 +1,8 @@
 """Learning from one rollout: GAE, then ``update_epochs × num_minibatches`` Adam steps on the
 clipped-surrogate loss (thesis §6.2.3), each epoch a fresh shuffle (``lax.scan`` throughout).
 What a policy computes from the state alone (the hand-designed RMP² tree of the residual RMP
-policy: :meth:`agents.ppo.networks.PPONetworks.policy_features`) is computed once per rollout
-state and shuffled with the batch.
+policy: :meth:`agents.ppo.networks.PPONetworks.policy_features`) comes with the rollout's
+transitions, computed once per state, and is shuffled with the batch.
 
 The batch ``(T, N, ...)`` is laid out environment-major in ``blocks`` equal blocks of whole
 environments (one per device under a mesh, so shuffling never moves data between devices);
@@ -19,7 +19,7 @@ import optax
 from jax.sharding import Mesh
 
 from agents.ppo.config import PPOConfig
-from agents.ppo.hparams import base_weight, resolve
+from agents.ppo.hparams import resolve
 from agents.ppo.losses import gae, ppo_loss
 from agents.ppo.networks import PPONetworks
 from agents.ppo.normalization import update_stats
@@ -118,10 +118,8 @@ def make_update(nets: PPONetworks, tx: optax.GradientTransformation, config: PPO
                        hp.gamma, hp.gae_lambda)
         flat = {"obs": tr.obs, "actions": tr.actions, "log_probs": tr.log_probs,
                 "advantages": adv, "returns": ret}
-        # once per state, not once per epoch
-        features = nets.policy_features(tr.obs, base_weight(ts.hparams))
-        if features is not None:
-            flat["policy_features"] = features
+        if tr.policy_features is not None:  # the rollout's, not computed again per epoch
+            flat["policy_features"] = tr.policy_features
         flat = constrain_blocks(jax.tree.map(lambda x: _to_blocks(x, blocks), flat))
         (params, opt_state), upd = epochs(ts.params, ts.opt_state, stats, flat,
                                           jax.random.split(key, config.update_epochs), hp)

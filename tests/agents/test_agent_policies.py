@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import envs
-from agents.ppo import PPOConfig, make_train
+from agents.ppo import PPOConfig, make_trainer
 from agents.ppo.networks import GaussianPolicy, PPONetworks, ValueMLP
 from agents.ppo.normalization import RunningStats
 from agents.ppo.policies import (
@@ -199,15 +199,30 @@ TINY = PPOConfig(num_envs=4, rollout_length=8, num_minibatches=1, update_epochs=
 
 
 def test_rmp_residual_trains_one_iteration(three_link):
+    """One iteration of the residual RMP policy: the rollout's transitions carry the policy's
+    parameter-free part at every state (what ``precompute`` gives for the stored observation),
+    and the update that reads them equals the update in which the policy computes that part
+    itself in every minibatch; parameters and metrics finite."""
     env, _ = three_link
     pol = make_policy("rmp_residual", env)
-    params, metrics = jax.jit(make_train(env, pol, TINY))(jax.random.PRNGKey(8))
-    assert set(params["policy"]["params"]) == {"log_std", "residual"}
+    trainer = make_trainer(env, pol, TINY)
+    ts, tr = jax.jit(trainer.rollout)(jax.jit(trainer.init)(jax.random.PRNGKey(8)),
+                                      jax.random.PRNGKey(9))
+    stored = jax.tree.leaves(tr.policy_features)
+    again = jax.tree.leaves(jax.vmap(pol.precompute)(tr.obs))
+    for a, b in zip(stored, again, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+    update, key = jax.jit(trainer.update), jax.random.PRNGKey(10)
+    (ts, metrics), (plain, plain_metrics) = (update(ts, tr, key),
+                                             update(ts, tr._replace(policy_features=None), key))
+    assert set(ts.params["policy"]["params"]) == {"log_std", "residual"}
+    for a, b in zip(jax.tree.leaves(ts.params), jax.tree.leaves(plain.params), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
     for k in ("loss", "policy_loss", "value_loss", "mean_reward"):
-        assert metrics[k].shape == (1,)
-        assert bool(jnp.all(jnp.isfinite(metrics[k]))), k
+        assert bool(jnp.isfinite(metrics[k])), k
+        np.testing.assert_allclose(metrics[k], plain_metrics[k], rtol=1e-5, atol=1e-6)
     assert bool(jnp.all(jnp.isfinite(jnp.concatenate(
-        [x.ravel() for x in jax.tree.leaves(params)]))))
+        [x.ravel() for x in jax.tree.leaves(ts.params)]))))
 
 
 def test_rmp_residual_env_pair():
