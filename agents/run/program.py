@@ -119,6 +119,7 @@ class Program:
             t0 = time.perf_counter()
             for chunk_lowered in self.lowering:  # compile_ahead's trace first
                 chunk_lowered.wait()
+            self.lowering.clear()
             options = run_once_compiler_options(jax.default_backend())
             what = {"program": "init"} if scenes is None else {"program": "init_scenes"}
             init = self._from_artifact(self.init, args, what, options)
