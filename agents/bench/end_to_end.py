@@ -142,10 +142,10 @@ def write_training_speed(results: list[dict[str, Any]], out_dir: Path) -> Path:
     carries its own run record (``run``, ``record``: :func:`run_record`)."""
     headline = []
     for r in results:
-        f = r["full"]
+        f, n = r["full"], len(r["seeds"])
         if f is not None:
             headline.append((r["run"], [
-                f"{r['env']} {r['policy']}, {r['preset']} preset, {len(r['seeds'])} seeds × "
+                f"{r['env']} {r['policy']}, {r['preset']} preset, {n} seed{'s' * (n != 1)} × "
                 f"{r['iterations']} iterations: end to end from launch (compile, training)",
                 "—", f"{f['wall_s']:.0f} s ({f['compile_s']:.0f} s, {f['train_s']:.0f} s)"]))
         if r["first_cold"] is not None:
