@@ -239,10 +239,10 @@ def _launch(program: Program, spec: RunSpec, state: TrainState, start: int) -> _
 def _launch_ahead(program: Program, spec: RunSpec, state: TrainState, start: int) -> Future:
     """:func:`_launch` from a thread of its own, so that the caller can log and checkpoint the
     previous chunk meanwhile: on a GPU the call returns only once the device has run nearly the
-    whole chunk (Franka thesis chunk on an H200: after 11.5 s of 11.6 s; presumably XLA's host
-    reading loop conditions back), which on the caller's thread would serialise the host's work
-    with the device's (docs/design.md §5.7). A compile the chunk needs happens here, on the
-    caller's thread, so that its time is counted in the chunk it delays."""
+    whole chunk (Franka thesis chunk on an H200: 0.13 s before the end of 11.7 s; presumably
+    XLA's host reading loop conditions back), which on the caller's thread would serialise the
+    host's work with the device's (docs/design.md §5.7). A compile the chunk needs happens
+    here, on the caller's thread, so that its time is counted in the chunk it delays."""
     n = _chunk_length(spec, start)
     if n:
         program.executable(state, n)
