@@ -53,10 +53,9 @@ class Program:
         """The compiled ``run(·, n)`` (compiled on first use, from the exported program of an
         earlier process where there is one: :func:`agents.run.program_cache.exported`, or by
         :meth:`compile_ahead`; the time spent here is added to ``compile_seconds``)."""
-        key = _chunk_key(state, n)
-        if key not in self.executables:
+        key, job = _chunk_key(state, n), self.ahead.pop(n, None)
+        if job is not None or key not in self.executables:
             t0 = time.perf_counter()
-            job = self.ahead.pop(n, None)
             if job is not None:  # stored under the key of init's shapes, normally this one
                 job.result()
             if key not in self.executables:
@@ -74,25 +73,27 @@ class Program:
             run = program.compile()
         return run
 
-    def compile_ahead(self, keys: jax.Array, n: int) -> Future:
+    def compile_ahead(self, keys: jax.Array, n: int, hold_init: bool = True) -> Future:
         """Start compiling ``run(·, n)`` for the state ``init(keys)`` returns in a background
         thread (from :meth:`state_shapes`), so that it overlaps the compile and run of ``init``
-        itself (XLA compiles without the GIL: 3-link thesis chunk, H200, 32.8 s → 25.8 s for
-        both; docs/design.md §5.6). Tracing ``init`` waits until the chunk is lowered, so that
-        the two traces do not share the GIL (the chunk's is the longer path). :meth:`executable`
-        waits for it; an error in the thread is raised there. Not for sharded programs (the
-        shapes carry no sharding)."""
+        itself, or a resume's restore (XLA compiles without the GIL: 3-link thesis chunk, H200,
+        32.8 s → 25.8 s for both; docs/design.md §5.6). With ``hold_init``, tracing ``init``
+        waits until the chunk is lowered, so that the two traces do not share the GIL (the
+        chunk's is the longer path). :meth:`executable` waits for it; an error in the thread is
+        raised there. Not for sharded programs (the shapes carry no sharding)."""
         lowered = threading.Event()
 
         def compile_chunk() -> None:
             try:
                 shapes = self.state_shapes(keys)
-                self.executables[_chunk_key(shapes, n)] = self._compile_run(shapes, n,
-                                                                            lowered.set)
+                key = _chunk_key(shapes, n)
+                if key not in self.executables:  # a run before this one in the process
+                    self.executables[key] = self._compile_run(shapes, n, lowered.set)
             finally:
                 lowered.set()
 
-        self.lowering.append(lowered)
+        if hold_init:
+            self.lowering.append(lowered)
         self.ahead[n] = in_background(compile_chunk, f"compile chunk {n}")
         return self.ahead[n]
 
@@ -114,12 +115,11 @@ class Program:
         compiles with :func:`mjxrmp._xla.run_once_compiler_options` (on the CPU a lower
         optimisation level: docs/design.md §5.6)."""
         args = (keys,) if scenes is None else (keys, scenes)
-        n = (keys.shape[0], scenes is not None)
+        n, lowering, self.lowering = (keys.shape[0], scenes is not None), self.lowering, []
         if n not in self.inits:
             t0 = time.perf_counter()
-            for chunk_lowered in self.lowering:  # compile_ahead's trace first
+            for chunk_lowered in lowering:  # compile_ahead's trace first
                 chunk_lowered.wait()
-            self.lowering.clear()
             options = run_once_compiler_options(jax.default_backend())
             what = {"program": "init"} if scenes is None else {"program": "init_scenes"}
             init = self._from_artifact(self.init, args, what, options)

@@ -225,6 +225,23 @@ def _chunk_length(spec: RunSpec, start: int) -> int:
     return max(0, min(spec.log_every, spec.ppo.total_iterations - start))
 
 
+def _first_chunk(spec: RunSpec, ckpt_dir: str, resume: bool) -> int:
+    """The length of the run's first chunk, to compile ahead: for a resume, the chunk after the
+    newest checkpoint when it verifies and belongs to ``spec`` (else 0: nothing is compiled
+    ahead and the restore raises or warns as usual)."""
+    if not resume:
+        return _chunk_length(spec, 0)
+    step = checkpoint.latest_step(ckpt_dir)
+    if step is None:
+        return 0
+    try:
+        meta = checkpoint.load_meta(ckpt_dir, step)
+        checkpoint.check_compatible(meta, spec.identity())
+    except (checkpoint.CorruptCheckpointError, checkpoint.IncompatibleCheckpointError):
+        return 0
+    return _chunk_length(spec, int(meta["iteration"]))
+
+
 def _launch(program: Program, spec: RunSpec, state: TrainState, start: int) -> _Chunk | None:
     """Dispatch the chunk that follows iteration ``start`` (None when the run is complete);
     on the CPU JAX returns before the device has run it (docs/design.md §5.7)."""
@@ -332,9 +349,10 @@ def run_training(spec: RunSpec, out_dir: str, resume: bool = False, progress: bo
         agree(refused, f"training into {out_dir}")
         program = build(spec, mesh)
         compile_before = program.compile_seconds
-        if not (resume or mesh is not None or is_multiprocess()) and spec.ppo.total_iterations:
-            program.compile_ahead(seed_keys(spec.seeds),
-                                  min(spec.log_every, spec.ppo.total_iterations))
+        first = 0 if mesh is not None or is_multiprocess() else _first_chunk(spec, ckpt_dir,
+                                                                             resume)
+        if first:
+            program.compile_ahead(seed_keys(spec.seeds), first, hold_init=not resume)
         state, history, done = _initial_state(program, spec, ckpt_dir, resume,
                                               mesh is not None or is_multiprocess())
         writer, total = is_writer(), spec.ppo.total_iterations

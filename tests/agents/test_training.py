@@ -9,6 +9,7 @@ import dataclasses
 import io
 import json
 import os
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -26,6 +27,7 @@ from agents.ppo.normalization import init_stats, normalize, update_stats
 from agents.run import checkpoint, training
 from agents.run.loading import checkpoint_steps
 from agents.run.logs import read_csv
+from agents.run.program import Program, build
 from agents.run.spec import RunSpec, parse_overrides, preset
 from agents.run.training import run_training
 
@@ -117,6 +119,39 @@ def test_resumed_run_equals_uninterrupted(uninterrupted, tmp_path):
     _assert_tree_close(resumed.state.params, result.state.params)
     history, _ = read_csv(os.path.join(out, "metrics.csv"))
     assert history["mean_reward"].shape == (2, 4)
+
+
+def test_a_resume_compiles_its_first_chunk_while_it_restores(uninterrupted, tmp_path,
+                                                            monkeypatch):
+    """--resume compiles the chunk after the newest checkpoint ahead (4 of 5 iterations done:
+    a chunk of 1), without holding init's trace; a second run in the process compiles nothing
+    again; a checkpoint of another configuration is refused with nothing compiled ahead."""
+    calls, compiles = [], []
+    compile_ahead, compile_run = Program.compile_ahead, Program._compile_run
+
+    def noting_ahead(self, keys, n, hold_init=True):
+        calls.append((n, hold_init))
+        return compile_ahead(self, keys, n, hold_init)
+
+    def noting_compile(self, state, n, *rest):
+        compiles.append(n)
+        return compile_run(self, state, n, *rest)
+
+    monkeypatch.setattr(Program, "compile_ahead", noting_ahead)
+    monkeypatch.setattr(Program, "_compile_run", noting_compile)
+    _, out = uninterrupted
+    five = dataclasses.replace(SPEC, ppo=dataclasses.replace(SPEC.ppo, total_iterations=5))
+    program = build(five)
+    for i in range(2):
+        shutil.copytree(os.path.join(out, "checkpoints"), tmp_path / f"r{i}" / "checkpoints")
+        resumed = run_training(five, str(tmp_path / f"r{i}"), resume=True, progress=False)
+        assert resumed.history["mean_reward"].shape == (2, 5)
+        assert calls[-1] == (1, False) and not program.ahead and not program.lowering
+    assert compiles == [1]
+    other = dataclasses.replace(five, ppo=dataclasses.replace(five.ppo, learning_rate=1e-2))
+    with pytest.raises(checkpoint.IncompatibleCheckpointError, match="learning_rate"):
+        run_training(other, str(tmp_path / "r0"), resume=True, progress=False)
+    assert len(calls) == 2
 
 
 def test_interrupted_run_keeps_completed_iterations(uninterrupted, tmp_path):
