@@ -1,9 +1,11 @@
 """XLA settings every CPU entry point needs (docs/design.md §5.2) and the scripts' compile cache.
 
 With jaxlib 0.7.1–0.10.x, XLA:CPU's fusion emitters make MJX kinematics of deep chains extremely
-slow (seconds per step for the Franka); disabling them restores millisecond steps. The flag is read
-when the first backend initialises, so it must be set before any JAX computation runs. jaxlib 0.11
-removed the flag (and aborts on unknown XLA flags), so it is only set where jaxlib knows it.
+slow (seconds per step for the Franka); disabling them restores millisecond steps. jaxlib 0.10's
+YNNPACK reduction fusions compute some sums wrongly in a program with a batch axis of size 1 (a
+one-seed run); they are switched off (:data:`YNN_FLAG`). The flags are read when the first
+backend initialises, so they must be set before any JAX computation runs. jaxlib 0.11 removed
+the first (and aborts on unknown XLA flags), so each is only set where jaxlib needs it.
 
 Scripts also turn on JAX's persistent compilation cache (docs/design.md §5.6), so a repeated or
 resumed command loads its compiled programs instead of compiling them again, keep one
@@ -22,6 +24,13 @@ from collections.abc import Mapping
 from importlib import metadata
 
 CPU_FLAG = "--xla_cpu_use_fusion_emitters=false"
+#: jaxlib 0.10's XLA:CPU hands reductions to YNNPACK fusions, and one of those computes a sum
+#: over the last axis of a broadcast product wrongly when the program carries a batch axis of
+#: size 1: a one-seed PPO run's gradients through the residual RMP policy were wrong (off by
+#: up to the gradient's own size), and depended on what memory the call was given, so they
+#: changed from call to call (docs/design.md §5.2). With no YNNPACK fusions the sums are XLA's
+#: own and right; jaxlib 0.11 computes them right either way.
+YNN_FLAG = "--xla_cpu_experimental_ynn_fusion_type="
 #: Environment variable choosing the scripts' compile cache: a directory, or off/0/false.
 CACHE_ENV = "MJXRMP_COMPILE_CACHE"
 CACHE_OFF = ("off", "0", "false")
@@ -47,7 +56,7 @@ MIN_COMPILE_TIME_S = 0.0
 GPU_FLAG = "--xla_gpu_command_buffer_scheduling_mode=CONCURRENT"
 _GPU_MODE_OPTION = GPU_FLAG[2:].split("=")[0]  # xla_gpu_command_buffer_scheduling_mode
 #: The flags the scripts set themselves (not a user's choice, so not recorded with a result).
-SCRIPT_FLAGS = (CPU_FLAG, GPU_FLAG)
+SCRIPT_FLAGS = (CPU_FLAG, YNN_FLAG, GPU_FLAG)
 
 
 def _jaxlib_version() -> tuple[int, ...]:
@@ -64,11 +73,19 @@ def cpu_flag_supported() -> bool:
     return bool(version) and (0, 7) <= version < (0, 11)
 
 
+def ynn_flag_needed() -> bool:
+    """Whether the installed jaxlib has the YNNPACK reduction fusions of :data:`YNN_FLAG`."""
+    version = _jaxlib_version()
+    return bool(version) and (0, 10) <= version < (0, 11)
+
+
 def cpu_xla_flags(flags: str | None = None) -> str:
-    """``XLA_FLAGS`` with the fusion-emitter workaround added where jaxlib supports it."""
+    """``XLA_FLAGS`` (``flags``, default the environment's) with the fusion-emitter and YNNPACK
+    workarounds added where the installed jaxlib needs them, unless they set that option."""
     flags = os.environ.get("XLA_FLAGS", "") if flags is None else flags
-    if cpu_flag_supported() and "xla_cpu_use_fusion_emitters" not in flags:
-        flags = f"{flags} {CPU_FLAG}".strip()
+    for flag, wanted in ((CPU_FLAG, cpu_flag_supported()), (YNN_FLAG, ynn_flag_needed())):
+        if wanted and flag.split("=")[0] not in flags:
+            flags = f"{flags} {flag}".strip()
     return flags
 
 

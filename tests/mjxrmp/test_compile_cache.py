@@ -94,6 +94,19 @@ def test_a_script_run_fills_the_default_cache(tmp_path):
     assert any(p.name.startswith("jit_simulate") for p in cache.iterdir())
 
 
+def test_cpu_workarounds_are_added_where_the_installed_jaxlib_needs_them(monkeypatch):
+    """jaxlib 0.10 gets both CPU workarounds (a user's own value of an option is kept), 0.11
+    neither (it aborts on options it does not know), 0.9 only the fusion-emitter one."""
+    monkeypatch.setattr(_xla, "_jaxlib_version", lambda: (0, 10))
+    assert _xla.cpu_xla_flags("") == f"{_xla.CPU_FLAG} {_xla.YNN_FLAG}"
+    own = "--xla_cpu_experimental_ynn_fusion_type=dot"
+    assert _xla.cpu_xla_flags(own) == f"{own} {_xla.CPU_FLAG}"
+    monkeypatch.setattr(_xla, "_jaxlib_version", lambda: (0, 11))
+    assert _xla.cpu_xla_flags("--xla_dump_to=x") == "--xla_dump_to=x"
+    monkeypatch.setattr(_xla, "_jaxlib_version", lambda: (0, 9))
+    assert _xla.cpu_xla_flags("") == _xla.CPU_FLAG
+
+
 def test_run_once_programs_compile_at_a_low_cpu_level(monkeypatch):
     """A program that runs once (a PPO run's init) compiles at RUN_ONCE_CPU_LEVEL on the CPU,
     at a lower level where XLA_FLAGS asks for one (the suite's O0), with no options elsewhere."""

@@ -16,7 +16,7 @@ import envs
 from agents.ppo.policies import make_policy
 from mjxrmp import policies
 from mjxrmp.geometry import Obstacles
-from mjxrmp.residual import residual_from_parts, residual_parts
+from mjxrmp.residual import ResidualParts, residual_from_parts, residual_parts
 from mjxrmp.robots import get
 
 
@@ -90,6 +90,40 @@ def test_policy_with_precomputed_parts_matches_and_differentiates_alike(env_name
     g_without = jax.jit(jax.grad(lambda p: loss(p, None)))(params)
     jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5),
                  g_with, g_without)
+
+
+def test_a_batch_axis_of_one_leaves_the_gradient_unchanged():
+    """The learned leaf's gradient over 1,024 states, in a program with a leading batch axis of
+    size 1 (a one-seed run's seeds axis), equals the gradient without that axis and, for the
+    state where they would differ most, central differences. With jaxlib 0.10's YNNPACK
+    reduction fusions (mjxrmp._xla.YNN_FLAG) the batched gradient was off by up to its size."""
+    n, m, d = 1024, 2, 3
+    k = jax.random.split(jax.random.PRNGKey(0), 8)
+    L = jax.random.normal(k[0], (n, d, d))
+    parts = ResidualParts(L @ jnp.swapaxes(L, 1, 2) + jnp.eye(d), jax.random.normal(k[1], (n, d)),
+                          jax.random.normal(k[2], (n, m, d)), jax.random.normal(k[3], (n, m)),
+                          jnp.tril(jax.random.normal(k[4], (n, m, m))),
+                          jax.random.normal(k[5], (n, m)))
+    A_r, a_r = 0.3 * jax.random.normal(k[6], (n, m, m)), jax.random.normal(k[7], (n, m))
+
+    def loss(A, a):
+        return jnp.sum(jnp.sin(jax.vmap(residual_from_parts)(parts, A, a)))
+
+    plain = jax.jit(jax.grad(loss, (0, 1)))(A_r, a_r)
+    batched = jax.jit(jax.vmap(jax.grad(loss, (0, 1))))(A_r[None], a_r[None])
+    for b, p in zip(batched, plain, strict=True):
+        np.testing.assert_allclose(b[0], p, rtol=1e-4, atol=1e-4)
+    i = 0
+    one = jax.tree.map(lambda x: np.asarray(x[i], np.float64), parts)
+    f = lambda A: float(jnp.sum(jnp.sin(residual_from_parts(one, A, a_r[i]))))  # noqa: E731
+    eps, A0 = 1e-3, np.asarray(A_r[i], np.float64)
+    jax.config.update("jax_enable_x64", True)
+    try:
+        central = np.array([(f(A0 + e) - f(A0 - e)) / (2 * eps)
+                            for e in eps * np.eye(m * m).reshape(m * m, m, m)]).reshape(m, m)
+    finally:
+        jax.config.update("jax_enable_x64", False)
+    np.testing.assert_allclose(batched[0][0, i], central, rtol=1e-3, atol=1e-3)
 
 
 @pytest.mark.parametrize("kind", ["nn_residual", "hand_designed"])
