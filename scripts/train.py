@@ -1,7 +1,7 @@
 """Train a policy with PPO on a reaching task — the project's main job.
 
 With no arguments: ``rmp_residual`` on ``three_link/env3``, CPU-sized (``--preset cpu``:
-64 environments × 128 steps × 400 iterations, about 3 minutes on 2 CPU cores), written to
+64 environments × 128 steps × 400 iterations, about 1.5 minutes on 2 CPU cores), written to
 ``runs/three_link-env3_rmp_residual``. ``--preset thesis`` runs the thesis scale (128 × 512 steps,
 500 iterations, 30 epochs; meant for a GPU). See :mod:`agents.run.training` for what the run
 directory holds; ``--resume`` continues a run from its newest checkpoint.
