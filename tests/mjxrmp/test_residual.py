@@ -95,8 +95,8 @@ def test_policy_with_precomputed_parts_matches_and_differentiates_alike(env_name
 def test_a_batch_axis_of_one_leaves_the_gradient_unchanged():
     """The learned leaf's gradient over 1,024 states, in a program with a leading batch axis of
     size 1 (a one-seed run's seeds axis), equals the gradient without that axis and, for the
-    state where they would differ most, central differences. With jaxlib 0.10's YNNPACK
-    reduction fusions (mjxrmp._xla.YNN_FLAG) the batched gradient was off by up to its size."""
+    first state, central differences in float64. With jaxlib 0.10's YNNPACK reduction fusions
+    (mjxrmp._xla.YNN_FLAG) the batched gradient was off by up to its own size."""
     n, m, d = 1024, 2, 3
     k = jax.random.split(jax.random.PRNGKey(0), 8)
     L = jax.random.normal(k[0], (n, d, d))
