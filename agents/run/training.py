@@ -347,14 +347,17 @@ def run_training(spec: RunSpec, out_dir: str, resume: bool = False, progress: bo
         except (RunDirectoryInUseError, FileExistsError, FileNotFoundError) as e:
             refused = e
         agree(refused, f"training into {out_dir}")
+        sharded = mesh is not None or is_multiprocess()
+        # A resume reads its newest checkpoint's meta (importing orbax) while the environment
+        # builds, which on a GPU mostly waits for the device (docs/design.md §5.6).
+        first_job = None if sharded else in_background(
+            lambda: _first_chunk(spec, ckpt_dir, resume), "first-chunk")
         program = build(spec, mesh)
         compile_before = program.compile_seconds
-        first = 0 if mesh is not None or is_multiprocess() else _first_chunk(spec, ckpt_dir,
-                                                                             resume)
+        first = 0 if first_job is None else first_job.result()
         if first:
             program.compile_ahead(seed_keys(spec.seeds), first, hold_init=not resume)
-        state, history, done = _initial_state(program, spec, ckpt_dir, resume,
-                                              mesh is not None or is_multiprocess())
+        state, history, done = _initial_state(program, spec, ckpt_dir, resume, sharded)
         writer, total = is_writer(), spec.ppo.total_iterations
         if writer:
             write_spec(spec, out_dir)

@@ -154,6 +154,31 @@ def test_a_resume_compiles_its_first_chunk_while_it_restores(uninterrupted, tmp_
     assert len(calls) == 2
 
 
+def test_a_resume_reads_its_checkpoint_while_the_environment_builds(uninterrupted, tmp_path,
+                                                                     monkeypatch):
+    """--resume reads the newest checkpoint's meta (the first use of orbax) in the background
+    while the environment builds: the build below waits until that read has begun, and fails
+    when the read comes only after it."""
+    read = threading.Event()
+    load_meta, real_build = checkpoint.load_meta, training.build
+
+    def noting_meta(*args, **kwargs):
+        read.set()
+        return load_meta(*args, **kwargs)
+
+    def waiting_build(*args, **kwargs):
+        assert read.wait(timeout=30), "the checkpoint was not read while the environment built"
+        return real_build(*args, **kwargs)
+
+    monkeypatch.setattr(checkpoint, "load_meta", noting_meta)
+    monkeypatch.setattr(training, "build", waiting_build)
+    _, out = uninterrupted
+    five = dataclasses.replace(SPEC, ppo=dataclasses.replace(SPEC.ppo, total_iterations=5))
+    shutil.copytree(os.path.join(out, "checkpoints"), tmp_path / "r" / "checkpoints")
+    resumed = run_training(five, str(tmp_path / "r"), resume=True, progress=False)
+    assert resumed.history["mean_reward"].shape == (2, 5)
+
+
 def test_interrupted_run_keeps_completed_iterations(uninterrupted, tmp_path):
     """Ctrl-C after the second chunk: the checkpoint written on the way out holds all 4 done
     iterations; --resume finishes and equals the uninterrupted run."""
