@@ -85,6 +85,21 @@ def _restored_step(directory, template) -> int:
     return meta["step"]
 
 
+def test_steps_are_listed_as_orbax_lists_them(real, tmp_path):
+    """:func:`checkpoint.all_steps` (a directory listing, no orbax) gives the steps orbax's own
+    manager counts as complete: not a step still being written under its temporary name, nor
+    files or other directories."""
+    _, state, _ = real
+    _save(tmp_path, state, [1, 3, 10])
+    shutil.copytree(tmp_path / "3", tmp_path / "12.orbax-checkpoint-tmp-1764460000000000")
+    (tmp_path / "7").write_text("not a step")
+    (tmp_path / "tb").mkdir()
+    with ocp.CheckpointManager(str(tmp_path), options=ocp.CheckpointManagerOptions(
+            create=False)) as mgr:
+        assert checkpoint.all_steps(tmp_path) == sorted(mgr.all_steps()) == [1, 3, 10]
+    assert checkpoint.all_steps(tmp_path / "missing") == []
+
+
 def test_byte_flip_falls_back_to_previous_step(real, tmp_path, capsys):
     """issue case 1: 16 bytes flipped inside the newest checkpoint's data file → the previous
     checkpoint is restored (bitwise) with a one-line warning naming the file; asking for the
