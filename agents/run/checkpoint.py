@@ -178,11 +178,9 @@ def verify(directory: str | os.PathLike, step: int) -> dict[str, Any] | None:
 
 
 def all_steps(directory: str | os.PathLike) -> list[int]:
-    """Every complete step (renamed into place by orbax) in ``directory``, ascending, verified
-    or not ([] if there is none or no directory). Orbax writes a step under a temporary name
-    (``<step>.orbax-checkpoint-tmp-…``) and renames it to ``<step>`` once complete, so these
-    are the directories named by a number: listed without orbax, whose import alone takes
-    0.3–0.6 s of a resumed command's start (docs/design.md §5.6)."""
+    """Every complete step in ``directory``, ascending, verified or not ([] if none): orbax
+    renames a step's temporary directory to ``<step>`` once complete, so the directories named
+    by a number, listed without importing orbax (0.3–0.6 s; docs/design.md §5.6)."""
     if not os.path.isdir(directory):
         return []
     return sorted(int(n) for n in os.listdir(directory)
