@@ -179,8 +179,8 @@ def verify(directory: str | os.PathLike, step: int) -> dict[str, Any] | None:
 
 def all_steps(directory: str | os.PathLike) -> list[int]:
     """Every complete step in ``directory``, ascending, verified or not ([] if none): orbax
-    renames a step's temporary directory to ``<step>`` once complete, so the directories named
-    by a number, listed without importing orbax (0.3–0.6 s; docs/design.md §5.6)."""
+    renames a step's temporary directory to ``<step>`` once complete, so these are the
+    number-named directories, listed without importing orbax (0.3–0.6 s; docs/design.md §5.6)."""
     if not os.path.isdir(directory):
         return []
     return sorted(int(n) for n in os.listdir(directory)
