@@ -48,16 +48,13 @@ def _both(cfg, q, qd, goal, obstacles, A_r, a_r):
 @settings(max_examples=12, deadline=None)
 @given(robot=st.sampled_from(["three_link", "franka"]), seed=st.integers(0, 2**16))
 def test_parts_plus_learned_leaf_equal_the_whole_tree_in_float64(robot, seed):
-    jax.config.update("jax_enable_x64", True)
-    try:
+    with jax.enable_x64(True):
         cfg = policies.default_config(robot, "residual_rmp")
         q, qd, goal, obstacles, A_r, a_r = _case(robot, seed)
         ref, got = _both(cfg, q, qd, goal, obstacles, A_r, a_r)
         assert got.dtype == jnp.float64
         np.testing.assert_allclose(got, ref, rtol=1e-10,
                                    atol=1e-10 * float(jnp.max(jnp.abs(ref))))
-    finally:
-        jax.config.update("jax_enable_x64", False)
 
 
 def test_parts_need_a_target_leaf():
@@ -117,12 +114,9 @@ def test_a_batch_axis_of_one_leaves_the_gradient_unchanged():
     one = jax.tree.map(lambda x: np.asarray(x[i], np.float64), parts)
     f = lambda A: float(jnp.sum(jnp.sin(residual_from_parts(one, A, a_r[i]))))  # noqa: E731
     eps, A0 = 1e-3, np.asarray(A_r[i], np.float64)
-    jax.config.update("jax_enable_x64", True)
-    try:
+    with jax.enable_x64(True):
         central = np.array([(f(A0 + e) - f(A0 - e)) / (2 * eps)
                             for e in eps * np.eye(m * m).reshape(m * m, m, m)]).reshape(m, m)
-    finally:
-        jax.config.update("jax_enable_x64", False)
     np.testing.assert_allclose(batched[0][0, i], central, rtol=1e-3, atol=1e-3)
 
 
