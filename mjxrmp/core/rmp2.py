@@ -250,8 +250,8 @@ def _resolve(root: RMP) -> jax.Array:
 
 
 def _run_debug(fn: Callable[..., jax.Array], args: tuple) -> jax.Array:
-    """Run ``fn(*args)`` under checkify (named checks + float checks); raise a named error (with
-    the first NaN-making operation, if any) before a float error.
+    """Run ``fn(*args)`` under checkify (named checks + float checks), compiled; raise a named
+    error (with the first NaN-making operation, if any) before a float error.
 
     The inputs are traced arguments (not closed-over constants) so that every operation that
     depends on them is checked.
@@ -272,8 +272,10 @@ def _run_debug(fn: Callable[..., jax.Array], args: tuple) -> jax.Array:
     # positive semi-definite) say which leaf is at fault; the primitive-level float checks say
     # which operation made the first NaN. A named error is raised with that operation appended
     # (a bad leaf metric makes the resolve's Cholesky the first NaN, docs/design.md §5.10).
-    float_err, _ = checkify.checkify(fn, errors=checkify.float_checks)(*args)
-    named_err, out = checkify.checkify(fn, errors=checkify.user_checks)(*args)
+    # Each checked function is compiled, not run op by op: the same checks, one XLA program
+    # each (a hand-designed policy's debug call on a 2-core CPU: 1.9 s instead of 4.3 s).
+    float_err, _ = jax.jit(checkify.checkify(fn, errors=checkify.float_checks))(*args)
+    named_err, out = jax.jit(checkify.checkify(fn, errors=checkify.user_checks))(*args)
     named, first_nan = named_err.get(), float_err.get()
     if named is not None:
         raise checkify.JaxRuntimeError(

@@ -153,7 +153,7 @@ def test_debug_mode_names_a_leaf_with_a_negative_definite_metric(three_link):
         return out
 
     args = (q, qd, goal, obstacles, cfg)
-    # the plain (non-debug) calls compiled, not run op by op; debug mode runs eagerly
+    # the plain (non-debug) calls compiled; debug mode raises here, before returning
     plain = jax.jit(rmp2.acceleration, static_argnums=(0, 1))(policies.task_map,
                                                                reversed_target, *args)
     assert not np.all(np.isfinite(plain))  # without debug mode: NaN, not a wrong number

@@ -205,7 +205,7 @@ def test_debug_mode_reports_first_non_finite_value():
         return out
 
     q, qd = (jnp.asarray(a[0], jnp.float32) for a in random_states(1, seed=2))
-    # the plain (non-debug) calls compiled, not run op by op; debug mode runs eagerly
+    # the plain (non-debug) calls compiled; debug mode raises here, before returning
     plain = jax.jit(rmp2.acceleration, static_argnums=(0, 1))
     assert not np.all(np.isfinite(plain(hand_map, nan_leaves, q, qd, 0.3)))
     # A NaN produced by a traced operation is reported at the primitive that produced it ...
