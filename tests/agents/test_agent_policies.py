@@ -147,14 +147,14 @@ def test_nn_is_nn_residual_with_base_weight_zero(three_link):
         np.testing.assert_array_equal(a, b)
     assert jax.tree.structure(nn_params) == jax.tree.structure(res_params)
     nets = PPONetworks(res_pol, ValueMLP())
+    features, precompute = jax.jit(nets.policy_features), jax.jit(res_pol.precompute)
     obs = states.obs
-    np.testing.assert_array_equal(nets.policy_features(obs, jnp.float32(1.0)),
-                                  res_pol.precompute(obs))
-    mean0, _ = res_apply(res_params, obs, None, nets.policy_features(obs, jnp.float32(0.0)))
+    np.testing.assert_array_equal(features(obs, jnp.float32(1.0)), precompute(obs))
+    mean0, _ = res_apply(res_params, obs, None, features(obs, jnp.float32(0.0)))
     np.testing.assert_array_equal(mean0, nn_apply(nn_params, obs)[0])
     bad = obs.at[0, 0].set(jnp.nan)
-    assert not bool(jnp.all(jnp.isfinite(res_pol.precompute(bad))))
-    np.testing.assert_array_equal(nets.policy_features(bad, jnp.float32(0.0)), 0.0)
+    assert not bool(jnp.all(jnp.isfinite(precompute(bad))))
+    np.testing.assert_array_equal(features(bad, jnp.float32(0.0)), 0.0)
     with pytest.raises(ValueError, match="base_weight needs"):
         PPONetworks(nn_pol, ValueMLP()).policy_features(obs, jnp.float32(0.0))
     assert packed_kind(("nn", "nn_residual")) == "nn_residual" == packed_kind(("nn_residual",))
@@ -209,7 +209,7 @@ def test_rmp_residual_trains_one_iteration(three_link):
     ts, tr = jax.jit(trainer.rollout)(jax.jit(trainer.init)(jax.random.PRNGKey(8)),
                                       jax.random.PRNGKey(9))
     stored = jax.tree.leaves(tr.policy_features)
-    again = jax.tree.leaves(jax.vmap(pol.precompute)(tr.obs))
+    again = jax.tree.leaves(jax.jit(jax.vmap(pol.precompute))(tr.obs))
     for a, b in zip(stored, again, strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
     update, key = jax.jit(trainer.update), jax.random.PRNGKey(10)
