@@ -193,8 +193,11 @@ def test_residual_rmp_acceleration_matches_float64_reference():
             out["target"] = (M[None], f[None])
             return out
 
-        M_ref, f_ref = reference_pullback(policies.task_map, leaves_np, q, qd, goal, obs, cfg)
-        got = policies.residual_rmp_acceleration(cfg, q, qd, goal, obs, A_r, a_r)
+        M_ref, f_ref = reference_pullback(policies.task_map, leaves_np, q, qd, goal, obs, cfg,
+                                          jit_leaves=False)
+        residual = jax.jit(policies.residual_rmp_acceleration)
+        got = residual(cfg, q, qd, goal, obs, A_r, a_r)
         assert rel_err(got, reference_resolve(M_ref, f_ref)) <= 1e-6
-        zero = policies.residual_rmp_acceleration(cfg, q, qd, goal, obs, 0 * A_r, 0 * a_r)
-        np.testing.assert_allclose(zero, policies.acceleration(cfg, q, qd, goal, obs), rtol=1e-9)
+        zero = residual(cfg, q, qd, goal, obs, 0 * A_r, 0 * a_r)
+        np.testing.assert_allclose(zero, jax.jit(policies.acceleration)(cfg, q, qd, goal, obs),
+                                   rtol=1e-9)
