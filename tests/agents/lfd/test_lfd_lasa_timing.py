@@ -107,8 +107,9 @@ def test_time_to_go_of_the_identity_flow_is_the_closed_integral(potential):
              if np.linalg.norm(p) > eps else 0.0 for p in x]
     # Midpoint rule in log ρ: relative error ≈ h²/24 (h ≈ 0.3 for 16 nodes: 0.4 %, measured
     # 0.3 %), exact for the quadratic potential (constant integrand in log ρ).
+    time_to_go = jax.jit(field.time_to_go, static_argnames="num_nodes")
     for nodes, rtol in ((16, 5e-3), (128, 1e-4)):
-        got = np.asarray(field.time_to_go(variables, jnp.asarray(x), num_nodes=nodes))
+        got = np.asarray(time_to_go(variables, jnp.asarray(x), num_nodes=nodes))
         np.testing.assert_allclose(got, exact, rtol=rtol, atol=1e-7)
 
 
@@ -117,7 +118,8 @@ def test_time_to_go_predicts_the_latent_rollouts_arrival(timed, shape):
     trainer, result = timed
     field, var = trainer.field, result.variables
     x0 = jnp.asarray(shape.demos[:, 0])
-    tau = np.asarray(field.time_to_go(var, x0, num_nodes=64))
+    tau = np.asarray(jax.jit(field.time_to_go, static_argnames="num_nodes")(var, x0,
+                                                                          num_nodes=64))
     xs = rollout(field, var, x0, 3 * shape.demos.shape[1], shape.dt, method="latent")
     r = np.linalg.norm(np.asarray(field.latent(var, xs)), axis=-1)
     steps = np.argmax(r <= field.config.potential_eps, axis=-1)
@@ -131,7 +133,7 @@ def test_arrival_time_loss_trains_only_the_speed_and_fits_the_timing(timed, shap
     x, dt = jnp.asarray(shape.demos, jnp.float32), jnp.float32(shape.dt)
     p = result.variables
     loss = lambda q: arrival_time_loss(trainer.field, q, p["constants"], x, dt)  # noqa: E731
-    grads = jax.grad(loss)(p["params"])
+    grads = jax.jit(jax.grad(loss))(p["params"])
     assert all(float(jnp.abs(g).max()) == 0.0 for g in jax.tree.leaves(grads["flow"]))
     assert max(float(jnp.abs(g).max()) for g in jax.tree.leaves(grads["speed"])) > 0.0
     np.testing.assert_array_equal(time_anchors(235, 8), [0, 29, 58, 88, 117, 146, 176, 205])
