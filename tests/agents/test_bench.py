@@ -1,34 +1,29 @@
 """Benchmarks (agents/bench/, offline/experiment/bench.py; the benchmark itself is not a timed
-test): the quick ``scripts/bench.py`` run end to end (a subprocess) writes a complete JSON, the
+test): the quick ``scripts/bench.py`` run end to end (its ``main``) writes a complete JSON, the
 summary and table of synthetic rows, and the offline benchmark's chunked whole run reports its
 progress."""
 
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 
 import jax
 import pytest
+from script_main import load_script
 
 from agents.bench.run import fill_defaults, run_benchmark
 from agents.bench.table import fmt_rate, fmt_time, format_summary, format_table, summarise
 from offline.experiment.bench import run_benchmark as run_offline_benchmark
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-
-def test_quick_bench_writes_complete_json(tmp_path):
+def test_quick_bench_writes_complete_json(tmp_path, capsys):
+    """``scripts/bench.py --quick`` through its ``main`` in this process (the argument parsing,
+    the run, the printed table and the JSON it writes)."""
     path = tmp_path / "bench.json"
-    proc = subprocess.run(
-        [sys.executable, os.path.join(ROOT, "scripts", "bench.py"), "--quick", "--robots",
-         "three_link", "--latency-calls", "20", "--envs", "three_link/env3", "--json",
-         str(path)],
-        capture_output=True, text=True, timeout=900, env={**os.environ, "JAX_PLATFORMS": "cpu"})
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    assert "evals/s" in proc.stdout and "three_link" in proc.stdout
+    load_script("bench.py").main(["--quick", "--robots", "three_link", "--latency-calls", "20",
+                                  "--envs", "three_link/env3", "--json", str(path)])
+    stdout = capsys.readouterr().out
+    assert "evals/s" in stdout and "three_link" in stdout
 
     data = json.loads(path.read_text())
     for key in ("platform", "device_kind", "jax", "dtype"):
