@@ -20,8 +20,12 @@ def test_quick_bench_writes_complete_json(tmp_path, capsys):
     """``scripts/bench.py --quick`` through its ``main`` in this process (the argument parsing,
     the run, the printed table and the JSON it writes)."""
     path = tmp_path / "bench.json"
-    load_script("bench.py").main(["--quick", "--robots", "three_link", "--latency-calls", "20",
-                                  "--envs", "three_link/env3", "--json", str(path)])
+    async_dispatch = jax.config.values["jax_cpu_enable_async_dispatch"]  # the bench turns it off
+    try:
+        load_script("bench.py").main(["--quick", "--robots", "three_link", "--latency-calls",
+                                      "20", "--envs", "three_link/env3", "--json", str(path)])
+    finally:  # the tests that follow in this process dispatch as before
+        jax.config.update("jax_cpu_enable_async_dispatch", async_dispatch)
     stdout = capsys.readouterr().out
     assert "evals/s" in stdout and "three_link" in stdout
 
