@@ -90,6 +90,12 @@ def gae_reference(rewards, values, dones, truncs, last_value, gamma, lam):
     return adv, adv + values
 
 
+#: ``ppo_loss`` compiled (the apply functions and the normalisation flag static), so the tests
+#: below do not run it op by op.
+PPO_LOSS = jax.jit(ppo_loss, static_argnames=("policy_apply", "value_apply",
+                                              "normalize_advantages"))
+
+
 def loss_reference(W, b, log_std, v_w, v_b, batch, clip, vf, ent, normalize):
     obs = np.asarray(batch["obs"], np.float64)
     act = np.asarray(batch["actions"], np.float64)
@@ -187,16 +193,15 @@ def test_ppo_loss_matches_numpy_reference(normalize):
                              "log_std": jnp.asarray(log_std)},
                   "value": {"w": jnp.asarray(v_w), "b": jnp.asarray(v_b)}}
         jb = {k: jnp.asarray(v) for k, v in batch.items()}
-        loss_fn = jax.jit(ppo_loss, static_argnums=(2, 3, 7))  # compiled, not op by op
-        loss, m = loss_fn(params, jb, policy_apply, value_apply, clip, vf, ent, normalize)
+        loss, m = PPO_LOSS(params, jb, policy_apply, value_apply, clip, vf, ent, normalize)
         np.testing.assert_allclose(loss, ref[0], rtol=1e-10)
         np.testing.assert_allclose(m["policy_loss"], ref[1], rtol=1e-10)
         np.testing.assert_allclose(m["value_loss"], ref[2], rtol=1e-10)
         np.testing.assert_allclose(m["entropy"], ref[3], rtol=1e-10)
         np.testing.assert_allclose(m["clip_fraction"], ref[4], rtol=1e-10)
         # The gradient is finite and reaches both networks.
-        g = jax.jit(jax.grad(lambda p: loss_fn(p, jb, policy_apply, value_apply, clip, vf, ent,
-                                               normalize)[0]))(params)
+        g = jax.jit(jax.grad(lambda p: PPO_LOSS(p, jb, policy_apply, value_apply, clip, vf,
+                                                ent, normalize)[0]))(params)
         assert all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree.leaves(g))
         assert float(jnp.abs(g["value"]["w"]).sum()) > 0
 
@@ -276,9 +281,8 @@ def test_update_metrics_are_the_means_over_every_minibatch_step():
     whole = jax.tree.map(lambda x: x.reshape((-1, *x.shape[2:])), {
         "obs": tr.obs, "actions": tr.actions, "log_probs": tr.log_probs, "advantages": adv,
         "returns": ret})
-    _, want = jax.jit(ppo_loss, static_argnums=(2, 3), static_argnames="normalize_advantages")(
-        ts.params, whole, trainer.policy.apply, value, cfg.clip_eps, cfg.vf_coef, cfg.ent_coef,
-        normalize_advantages=False)
+    _, want = PPO_LOSS(ts.params, whole, trainer.policy.apply, value, cfg.clip_eps,
+                       cfg.vf_coef, cfg.ent_coef, normalize_advantages=False)
     for k, v in want.items():
         np.testing.assert_allclose(metrics[k], v, rtol=1e-5, atol=1e-7, err_msg=k)
 
