@@ -300,7 +300,9 @@ def _actor_update(core: ATACCore, actor_params: Any, actor_os: Any, batch: odata
 
             def game():
                 a, logp = dist.sample_from_noise(noise)
-                q1 = core.critic.apply(critic_params, batch.observations, a)[..., 0]
+                # Only f_1 enters the actor's loss: evaluate that member alone (leading axis).
+                first = jax.tree.map(lambda x: x[:1], critic_params)
+                q1 = core.critic.clone(num_critics=1).apply(first, batch.observations, a)[..., 0]
                 return combine(-jnp.mean(q1), jnp.mean(logp), alpha)
 
             return jax.lax.cond(in_warm, bc, game)
