@@ -272,15 +272,20 @@ def test_update_metrics_are_the_means_over_every_minibatch_step():
     cfg = dataclasses.replace(TINY, num_minibatches=4, update_epochs=3, learning_rate=1e-12,
                               normalize_advantages=False, normalize_observations=False)
     trainer = make_trainer(envs.make("point2d"), config=cfg)
-    ts, tr = jax.jit(trainer.rollout)(trainer.init(jax.random.PRNGKey(0)),
+    ts, tr = jax.jit(trainer.rollout)(jax.jit(trainer.init)(jax.random.PRNGKey(0)),
                                       jax.random.PRNGKey(1))
     _, metrics = jax.jit(trainer.update)(ts, tr, jax.random.PRNGKey(2))
     value = lambda p, o: trainer.value_net.apply(p, o)  # noqa: E731
-    adv, ret = gae(tr.rewards, tr.values, tr.dones, tr.truncations,
-                   value(ts.params["value"], ts.env_state.obs), cfg.gamma, cfg.gae_lambda)
-    whole = jax.tree.map(lambda x: x.reshape((-1, *x.shape[2:])), {
-        "obs": tr.obs, "actions": tr.actions, "log_probs": tr.log_probs, "advantages": adv,
-        "returns": ret})
+
+    @jax.jit
+    def whole_batch(ts, tr):
+        adv, ret = gae(tr.rewards, tr.values, tr.dones, tr.truncations,
+                       value(ts.params["value"], ts.env_state.obs), cfg.gamma, cfg.gae_lambda)
+        return jax.tree.map(lambda x: x.reshape((-1, *x.shape[2:])), {
+            "obs": tr.obs, "actions": tr.actions, "log_probs": tr.log_probs,
+            "advantages": adv, "returns": ret})
+
+    whole = whole_batch(ts, tr)
     _, want = PPO_LOSS(ts.params, whole, trainer.policy.apply, value, cfg.clip_eps,
                        cfg.vf_coef, cfg.ent_coef, normalize_advantages=False)
     for k, v in want.items():

@@ -120,12 +120,13 @@ def test_pooled_ppo_run_matches():
         tr = make_trainer(env, module, cfg, seed_axis=axis, reset_pools=pools)
         init = jax.jit(jax.vmap(tr.init, axis_name=AXIS))
         run = jax.jit(jax.vmap(tr.run, in_axes=(0, None), axis_name=AXIS), static_argnums=1)
-        jaxpr = str(jax.make_jaxpr(jax.vmap(tr.rollout, axis_name=AXIS))(
-            jax.eval_shape(init, keys), keys))
+        state = init(keys)
+        traced = run.trace(state, 2)  # traced once: its jaxpr is checked, then compiled
+        jaxpr = str(traced.jaxpr)
         # the compiled path: no branch / a conditional reset per step / pools + redo branch
         assert jaxpr.count("cond[") == jaxpr.count("pmax") == (0 if axis is None else
                                                                1 + pools)
-        out.append(run(init(keys), 2))
+        out.append(traced.lower().compile()(state))
     (ts_a, m_a), *others = out
     assert float(np.sum(np.asarray(m_a["episodes"]))) > 0
     for ts_b, m_b in others:
