@@ -44,6 +44,7 @@ Preprocessing (:func:`load_task`), per demonstration:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
 from collections.abc import Sequence
@@ -151,6 +152,13 @@ def hand_points(q: jax.Array, centre: str = "hand") -> jax.Array:
     return jnp.stack([frames[n][1] for n in names])
 
 
+@functools.partial(jax.jit, static_argnames="centre")
+def _hand_points_of_rows(q: jax.Array, centre: str) -> jax.Array:
+    """:func:`hand_points` of every row of ``q`` (one compiled program per recording length,
+    reused when a task is loaded again)."""
+    return jax.vmap(lambda x: hand_points(x, centre))(q)
+
+
 def read_raw(path: str | os.PathLike) -> np.ndarray:
     """The raw rows ``(n, 10)`` of one demonstration file (time, 7 joints, 2 finger widths),
     checked: 10 finite columns, at least 2 rows, strictly increasing time."""
@@ -199,8 +207,7 @@ def _preprocess(rows: np.ndarray, dt: float, trim_tol: float | None, centre: str
         raise ValueError(f"{source}: the recording ({time[-1]:.3f} s) is shorter than dt={dt}")
     cols = np.stack([np.interp(t, time, rows[:, j]) for j in range(1, NUM_COLUMNS)], axis=1)
     q, fingers = cols[:, :7], cols[:, 7:]
-    points = np.asarray(jax.jit(jax.vmap(lambda x: hand_points(x, centre)))(
-        jnp.asarray(q, jnp.float32)), np.float64)
+    points = np.asarray(_hand_points_of_rows(jnp.asarray(q, jnp.float32), centre), np.float64)
     return FrankaDemo(t=t, q=q, qd=_forward_difference(q, dt), fingers=fingers, points=points,
                       point_velocities=_forward_difference(points, dt), goals=points[-1].copy(),
                       dt=float(dt), source=source)
