@@ -34,7 +34,6 @@ import time
 from collections.abc import Callable, Sequence
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from brax.envs.base import Env
 
@@ -49,6 +48,7 @@ from agents.run.loading import (
     policy_params,
     read_spec,
 )
+from agents.run.rows import stacked
 from envs.evaluate import make_rollout
 
 #: Setups a reaching policy can be evaluated on (every reaching environment).
@@ -167,8 +167,7 @@ def stack_params(checkpoints: Sequence[LoadedRun]
             raise checkpoint.NonFiniteCheckpointError(
                 f"cannot evaluate checkpoint {c.step} of {c.run_dir}: its policy parameters hold "
                 f"non-finite values in {leaf} (the run diverged)")
-    stack = jax.tree.map(lambda *xs: jnp.concatenate(xs),
-                         *[policy_params(c) for c in checkpoints])
+    stack = stacked([policy_params(c) for c in checkpoints])
     members = [(i, s) for i, c in enumerate(checkpoints) for s in range(len(c.seeds))]
     return stack, members
 

@@ -37,6 +37,7 @@ from agents.ppo.normalization import RunningStats
 from agents.run import checkpoint
 from agents.run.checkpoint import IncompatibleCheckpointError
 from agents.run.program import Program, build, seed_keys
+from agents.run.rows import row
 from agents.run.spec import RunSpec
 
 
@@ -166,14 +167,8 @@ def policy_params(loaded: LoadedRun, seed_index: int | None = None) -> PolicyPar
         if not (isinstance(seed_index, int) and -n <= seed_index < n):
             raise IndexError(f"seed_index={seed_index!r} out of range for {n} seed(s) "
                              f"{loaded.seeds}")
-        state = _seed_row(state, seed_index % n)
+        state = row(state, seed_index % n)
     return PolicyParams(state.params["policy"], loaded.program.trainer.policy_norm(state))
-
-
-@jax.jit
-def _seed_row(state: Any, index: jax.Array) -> Any:
-    """Row ``index`` of every leaf of a stacked state (one compiled program per state layout)."""
-    return jax.tree.map(lambda x: x[index], state)
 
 
 def mean_action_fn(loaded_or_program: LoadedRun | Program) -> Callable[[PolicyParams, Any], Any]:

@@ -27,7 +27,6 @@ uninterrupted sweep (iteration ``i`` of every row draws from ``fold_in(key, i)``
 from __future__ import annotations
 
 import contextlib
-import functools
 import json
 import os
 import warnings
@@ -44,6 +43,8 @@ from agents.run.curves import episode_window
 from agents.run.directory import check_dir, lock_run_directory, write_spec
 from agents.run.logs import ProgressBar, summary_line
 from agents.run.program import Program, build, seed_keys
+from agents.run.rows import rows as rows_of
+from agents.run.rows import stacked
 from agents.run.sweep_spec import SweepSpec, row_scenes, row_values
 from agents.run.training import (
     RunResult,
@@ -105,21 +106,8 @@ class _SweepSaver:
         state = state._replace(hparams=None)
         for i, saver in enumerate(self.savers):
             rows = slice(i * self.n, (i + 1) * self.n)
-            saver.save(at, _rows(state, i * self.n, self.n),
+            saver.save(at, rows_of(state, i * self.n, self.n),
                        {k: v[rows] for k, v in history.items()})
-
-
-@functools.partial(jax.jit, static_argnames="size")
-def _rows(state: Any, start: int | jax.Array, size: int) -> Any:
-    """Rows ``start … start + size − 1`` of every leaf: one compiled program per state layout
-    for every point of every save, not one operation per leaf."""
-    return jax.tree.map(lambda x: jax.lax.dynamic_slice_in_dim(x, start, size), state)
-
-
-@jax.jit
-def _stacked(states: list[Any]) -> Any:
-    """The points' states stacked along the row axis (one compiled program)."""
-    return jax.tree.map(lambda *xs: jnp.concatenate(xs), *states)
 
 
 def initial_rows(program: Program, sweep: SweepSpec) -> TrainState:
@@ -153,7 +141,7 @@ def _initial_state(program: Program, sweep: SweepSpec, dirs: list[str], resume: 
         raise ValueError(f"the sweep's points were checkpointed at different iterations "
                          f"{sorted(done)}; resume each point with scripts/train.py --resume or "
                          "start the sweep again")
-    return _stacked(states)._replace(hparams=hp), histories, done.pop()
+    return stacked(states)._replace(hparams=hp), histories, done.pop()
 
 
 def final_table(sweep: SweepSpec, histories: list[dict[str, np.ndarray]]) -> list[dict]:

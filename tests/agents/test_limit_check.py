@@ -51,8 +51,8 @@ def test_environments_drop_the_constraint_pipeline_by_default():
 @functools.cache
 def _rollout_of(name: str, **env_kwargs: bool) -> np.ndarray:
     """:func:`random_action_qpos` of ``envs.make(name, **env_kwargs)`` (40 steps × 4
-    environments),
-    computed once per module (the looped model is shared by two tests)."""
+    environments), computed once per module (the CPU-default model's rollout is the reference
+    of every check below)."""
     return random_action_qpos(envs.make(name, **env_kwargs), 40, 4)
 
 
